@@ -1,0 +1,13 @@
+# Third-party dependencies, all from Debian packages (scripts/install-deps.sh installs them).
+find_package(Eigen3 3.4 REQUIRED NO_MODULE)
+find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs videoio photo)
+find_package(Threads REQUIRED)
+find_package(embree 3 REQUIRED)
+find_package(TBB REQUIRED)
+find_package(NLopt REQUIRED)
+find_package(PkgConfig REQUIRED)
+pkg_check_modules(IPOPT REQUIRED IMPORTED_TARGET ipopt)
+find_package(yaml-cpp REQUIRED)
+if(PBVE_WITH_BULLET)
+  pkg_check_modules(BULLET REQUIRED IMPORTED_TARGET bullet)
+endif()

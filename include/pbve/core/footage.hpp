@@ -1,0 +1,100 @@
+#pragma once
+/// @file
+/// Input footage (video, image sequence or a single image) and the video writer.
+
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace pbve {
+
+/// Read access to input frames (8-bit BGR, as OpenCV). Sequential access decodes each frame
+/// once; random access seeks (video) or loads the file (sequence).
+class Footage {
+ public:
+  /// A video file readable by OpenCV's videoio (FFmpeg backend). Throws InputError naming the
+  /// file when it is missing, unreadable, or has no decodable frame.
+  static Footage open_video(const std::filesystem::path& path);
+  /// An image sequence given as a printf pattern, e.g. "frames/%04d.png"; frames are numbered
+  /// from `first_index` (the first existing of 0 and 1 when -1) until the first missing file.
+  static Footage open_sequence(const std::string& pattern, double fps = 30.0, int first_index = -1);
+  /// A single image repeated `frames` times (the paper's single-picture mode).
+  static Footage open_image(const std::filesystem::path& path, int frames, double fps = 30.0);
+
+  Footage(Footage&&) noexcept;
+  Footage& operator=(Footage&&) noexcept;
+  ~Footage();
+
+  int frame_count() const;
+  double fps() const;
+  cv::Size size() const;
+  /// Frame `index` (0-based), 8-bit BGR. Throws std::out_of_range for a bad index and
+  /// InputError when the frame cannot be decoded.
+  cv::Mat frame(int index);
+  /// Where the frames come from (file or pattern), for messages.
+  const std::string& source() const;
+
+ private:
+  struct Impl;
+  explicit Footage(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> m_impl;
+};
+
+/// Writes frames to a video file. Frames go to a temporary name beside the target
+/// ("name.partial.ext") which is renamed to the target by close(); a writer destroyed
+/// without close() removes the temporary file, so no partial output is left under the
+/// final name. The codec is chosen by extension: .mp4 -> mp4v (or avc1), .avi -> MJPG,
+/// .mkv -> FFV1 (lossless).
+class VideoWriter {
+ public:
+  /// Throws InputError naming the file if the folder is not writable or no codec for the
+  /// extension is available (the message lists the extensions that work).
+  VideoWriter(const std::filesystem::path& path, double fps, cv::Size size);
+  VideoWriter(const VideoWriter&) = delete;
+  VideoWriter& operator=(const VideoWriter&) = delete;
+  ~VideoWriter();
+
+  /// Appends a frame (8-bit BGR of the writer's size).
+  void write(const cv::Mat& frame);
+  /// Finishes the file and renames it to the target path.
+  void close();
+  int frames_written() const { return m_frames; }
+  const std::filesystem::path& path() const { return m_path; }
+  const std::filesystem::path& temporary_path() const { return m_tmp; }
+
+ private:
+  std::filesystem::path m_path;
+  std::filesystem::path m_tmp;
+  cv::Size m_size;
+  int m_frames = 0;
+  struct Impl;
+  std::unique_ptr<Impl> m_impl;
+};
+
+/// Writes a file atomically: `write` receives a temporary path beside `path`, which is
+/// renamed to `path` when it returns normally and removed when it throws.
+template <class WriteFn>
+void write_atomically(const std::filesystem::path& path, WriteFn&& write);
+
+/// The temporary name used for `path` while it is being written ("name.partial.ext").
+std::filesystem::path partial_path(const std::filesystem::path& path);
+
+}  // namespace pbve
+
+#include <system_error>
+namespace pbve {
+template <class WriteFn>
+void write_atomically(const std::filesystem::path& path, WriteFn&& write) {
+  const std::filesystem::path tmp = partial_path(path);
+  try {
+    write(tmp);
+  } catch (...) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
+    throw;
+  }
+  std::filesystem::rename(tmp, path);
+}
+}  // namespace pbve

@@ -1,0 +1,88 @@
+#pragma once
+/// @file
+/// Triangle meshes: loading (OBJ, PLY), validation, refinement and per-triangle geometry.
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace pbve {
+
+/// #V by 3 vertex positions (one vertex per row), double precision.
+using Vertices = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+/// #F by 3 vertex indices (one triangle per row, counter-clockwise seen from outside).
+using Triangles = Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>;
+
+/// A triangle mesh with parts (OBJ groups/objects, e.g. fracture pieces) and per-triangle flags.
+struct Mesh {
+  Vertices vertices;                    ///< #V by 3, mesh units
+  Triangles triangles;                  ///< #F by 3
+  std::vector<int> triangle_part;       ///< #F, index into part_names (0 when the file has no parts)
+  std::vector<std::string> part_names;  ///< at least one entry ("default") when non-empty
+  std::vector<std::uint8_t> interior;   ///< #F, 1 = interior face (not textured from the footage)
+
+  int num_vertices() const { return static_cast<int>(vertices.rows()); }
+  int num_triangles() const { return static_cast<int>(triangles.rows()); }
+  int num_parts() const { return static_cast<int>(part_names.size()); }
+};
+
+/// Loads an OBJ or PLY mesh (chosen by extension, case-insensitive). Polygons are
+/// triangulated as fans. Throws InputError naming the file and line (OBJ, ASCII PLY) or
+/// element (binary PLY) at fault; throws InputError for an empty mesh, indices out of
+/// range and non-finite coordinates.
+///
+/// OBJ: `v`, `f` (with `v/vt/vn` forms and negative indices), `g`/`o` start a part; a
+/// part whose name starts with "interior" (or a `usemtl interior*` material) has its
+/// faces flagged interior. PLY: ascii and binary_little_endian 1.0, `vertex` with
+/// x y z, `face` with a list of indices; an optional face property `interior` (uchar)
+/// and `part` (int).
+Mesh load_mesh(const std::filesystem::path& path);
+Mesh load_obj(const std::filesystem::path& path);
+Mesh load_ply(const std::filesystem::path& path);
+
+/// Writes OBJ (one `g` per part, interior parts keep their names) — via a temporary file renamed on success.
+void save_obj(const Mesh& mesh, const std::filesystem::path& path);
+/// Writes binary little-endian PLY with `part` and `interior` face properties.
+void save_ply(const Mesh& mesh, const std::filesystem::path& path);
+
+/// Findings of validate_mesh() that are reported, not fatal.
+struct MeshReport {
+  int degenerate_count = 0;              ///< triangles with (near) zero area or repeated vertices
+  std::vector<int> degenerate_first;     ///< first few degenerate triangle ids (at most 8)
+  int non_manifold_edge_count = 0;       ///< edges shared by more than two triangles
+  std::vector<std::pair<int, int>> non_manifold_first;  ///< first few such edges (vertex ids)
+  int boundary_edge_count = 0;           ///< edges used by exactly one triangle
+  bool ok() const { return degenerate_count == 0 && non_manifold_edge_count == 0; }
+  /// Human-readable one-paragraph summary, empty when ok().
+  std::string summary() const;
+};
+
+/// Checks a mesh. Throws InputError (with `source` as the file, and the element, e.g.
+/// "triangle 12", as the key) for fatal problems: empty mesh, index out of range,
+/// non-finite coordinate, inconsistent per-triangle arrays. Returns the non-fatal findings.
+MeshReport validate_mesh(const Mesh& mesh, const std::filesystem::path& source = {});
+
+/// Scales vertices uniformly about the area-weighted centroid of the surface (factor 1.01 =
+/// the paper's 1% enlargement).
+void scale_about_centroid(Mesh& mesh, double factor);
+
+/// Splits edges until no edge is longer than `max_edge_length` (mesh units). Original
+/// vertices keep their indices (new vertices are appended), parts and interior flags are
+/// inherited by the sub-triangles, and shared edges are split consistently (no T-junctions).
+Mesh refine_mesh(const Mesh& mesh, double max_edge_length);
+
+/// Per-triangle unnormalized normals (b - a) x (c - a), #F by 3.
+Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles);
+/// Per-triangle areas, #F.
+Eigen::VectorXd triangle_areas(const Vertices& vertices, const Triangles& triangles);
+/// Per-triangle centroids, #F by 3.
+Vertices triangle_centroids(const Vertices& vertices, const Triangles& triangles);
+/// For each vertex, the sorted list of vertices sharing an edge with it.
+std::vector<std::vector<int>> vertex_adjacency(const Triangles& triangles, int num_vertices);
+/// Longest edge length of the mesh.
+double max_edge_length(const Mesh& mesh);
+
+}  // namespace pbve

@@ -1,0 +1,130 @@
+#pragma once
+/// @file
+/// The Simulator seam: the interface every physics engine adapter implements.
+///
+/// The optimizer treats the engine as a black box (paper section 3.2). An adapter exposes
+/// the **surface vertices** the visibility energy sees (input-mesh vertex order, camera
+/// frame, metres), a **control space** (a force per vertex, or a force + torque per rigid
+/// body), **anchors** whose positions are prescribed each step, exact **save/restore**,
+/// **clone**, and optionally **derivatives** (vector-Jacobian products of one step).
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pbve/core/mesh.hpp"
+
+namespace pbve {
+
+/// What a control block acts on.
+enum class ControlSpace {
+  vertex_force,  ///< one 3-D force per surface vertex (deformables); anchored blocks are ignored
+  body_wrench,   ///< one force + torque (6 numbers) per rigid body, applied at its centre of mass
+};
+
+/// Layout of the control vector u passed to Simulator::step().
+///
+/// u has `num_blocks * block_size()` entries; block b occupies u[b*k .. b*k + k - 1] with
+/// k = 3 (force, newtons) or 6 (force in newtons, then torque in newton-metres), camera frame.
+struct ControlLayout {
+  ControlSpace space = ControlSpace::vertex_force;
+  int num_blocks = 0;            ///< surface vertices (vertex_force) or bodies (body_wrench)
+  Eigen::VectorXd block_mass;    ///< kg: mass of the vertex / body each block acts on
+  std::vector<int> vertex_block; ///< per surface vertex: the block that moves it (-1: none)
+
+  int block_size() const { return space == ControlSpace::vertex_force ? 3 : 6; }
+  int size() const { return num_blocks * block_size(); }
+};
+
+/// A complete snapshot of a simulator's dynamic state (opaque; adapter-defined layout).
+/// Restoring it and stepping again must replay bit for bit.
+struct SimState {
+  std::vector<double> values;
+  std::vector<std::uint8_t> bytes;  ///< for adapters that need raw engine data
+};
+
+/// Input of one step (one frame interval; substeps are the adapter's business).
+struct StepInput {
+  double dt = 1.0 / 30.0;     ///< seconds
+  Eigen::VectorXd control;    ///< size ControlLayout::size(), or empty for zero control
+  /// Positions of the anchors (#anchors by 3, order of Simulator::anchors()) at the end of
+  /// the step, camera frame; linearly interpolated from their current positions across
+  /// substeps. Empty: anchors stay where they are.
+  Vertices anchor_targets;
+};
+
+/// Result of Simulator::step_vjp(): gradients of a scalar L with respect to the inputs of
+/// one step, given its gradient with respect to the step's output state.
+struct StepVjp {
+  Eigen::VectorXd state;    ///< dL/d(state before the step), size Simulator::state_dim()
+  Eigen::VectorXd control;  ///< dL/du, size ControlLayout::size()
+};
+
+/// The abstract physics engine interface.
+///
+/// Contract (checked by the conformance suite, include/pbve/testing/simulator_conformance.hpp):
+/// - positions() returns num_vertices() rows in input-mesh order, camera frame, metres;
+/// - after step(), anchors are exactly at their targets;
+/// - restore(save()) followed by the same steps reproduces positions bit for bit;
+/// - clone() is independent and steps identically;
+/// - a force f on a free block of mass m accelerates it by f / m;
+/// - wrong sizes throw std::invalid_argument; a legal step never produces NaN.
+class Simulator {
+ public:
+  virtual ~Simulator() = default;
+
+  /// Short engine name, e.g. "mass_spring".
+  virtual std::string name() const = 0;
+
+  /// Number of surface vertices (rows of positions()).
+  virtual int num_vertices() const = 0;
+  /// Surface vertex positions, #V by 3, camera frame, metres.
+  virtual Vertices positions() const = 0;
+  /// Surface vertex velocities, #V by 3, metres per second.
+  virtual Vertices velocities() const = 0;
+
+  /// Layout of the control vector.
+  virtual ControlLayout control_layout() const = 0;
+
+  /// Indices of anchored surface vertices (sorted). Anchored vertices are moved only by
+  /// their targets, never by the engine.
+  virtual std::vector<int> anchors() const = 0;
+
+  /// Advances the simulation by in.dt with the control held constant over the step.
+  /// Throws std::invalid_argument on wrong sizes or dt <= 0.
+  virtual void step(const StepInput& in) = 0;
+
+  /// Forces other than the control acting on the surface vertices during the last step
+  /// (#V by 3, newtons: gravity, internal/elastic, damping, contact), averaged over the
+  /// substeps — the "physical force" the report compares control forces against.
+  /// Zero rows for anchored vertices.
+  virtual Vertices physical_forces() const = 0;
+
+  /// Complete dynamic state.
+  virtual SimState save() const = 0;
+  /// Restores a state made by save() of this simulator or of a clone.
+  virtual void restore(const SimState& state) = 0;
+  /// Independent copy in the same state.
+  virtual std::unique_ptr<Simulator> clone() const = 0;
+
+  // ----- optional derivatives ---------------------------------------------------------
+
+  /// True when state_dim(), position_cotangent() and step_vjp() are implemented.
+  virtual bool has_derivatives() const { return false; }
+  /// Size of the differentiable state vector (adapter-defined; e.g. positions and velocities
+  /// of all nodes).
+  virtual int state_dim() const;
+  /// The state cotangent corresponding to a cotangent on positions() (#V by 3): for
+  /// L(positions(state)), returns dL/dstate given dL/dpositions.
+  virtual Eigen::VectorXd position_cotangent(const Vertices& d_positions) const;
+  /// Vector-Jacobian product of one step: the step taken from `before` with `in` maps state
+  /// s0 to s1; given g = dL/ds1, returns dL/ds0 and dL/du. Leaves this simulator in an
+  /// unspecified state (callers restore()).
+  virtual StepVjp step_vjp(const SimState& before, const StepInput& in,
+                           const Eigen::VectorXd& d_state_after);
+};
+
+}  // namespace pbve

@@ -1,0 +1,47 @@
+#pragma once
+// Helpers shared by the tests.
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+namespace pbve::test {
+
+/// A fresh empty directory for the running test (removed at destruction).
+class TempDir {
+ public:
+  TempDir() {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    std::string name = info ? std::string(info->test_suite_name()) + "_" + info->name() : "pbve";
+    for (char& c : name)
+      if (c == '/') c = '_';
+    m_path = std::filesystem::temp_directory_path() / ("pbve_test_" + name + "_" +
+                                                       std::to_string(::getpid()));
+    std::filesystem::remove_all(m_path);
+    std::filesystem::create_directories(m_path);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(m_path, ec);
+  }
+  const std::filesystem::path& path() const { return m_path; }
+  std::filesystem::path operator/(const std::string& name) const { return m_path / name; }
+
+ private:
+  std::filesystem::path m_path;
+};
+
+/// Writes `text` to `path` and returns the path.
+inline std::filesystem::path write_text(const std::filesystem::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+  return path;
+}
+
+/// Directory of checked-in test data (tests/data).
+inline std::filesystem::path data_dir() { return PBVE_TEST_DATA_DIR; }
+
+}  // namespace pbve::test
