@@ -8,6 +8,8 @@ find_package(NLopt REQUIRED)
 find_package(PkgConfig REQUIRED)
 pkg_check_modules(IPOPT REQUIRED IMPORTED_TARGET ipopt)
 find_package(yaml-cpp REQUIRED)
+# Report files (JSON): nlohmann-json3-dev, header-only.
+find_package(nlohmann_json 3 REQUIRED)
 if(PBVE_WITH_BULLET)
   pkg_check_modules(BULLET REQUIRED IMPORTED_TARGET bullet)
 endif()
