@@ -225,7 +225,8 @@ Footage Footage::open_video(const std::filesystem::path& path) {
   impl->path = path;
   impl->source = path.string();
   if (!impl->capture.open(path.string(), cv::CAP_FFMPEG))
-    throw InputError("not a readable video (OpenCV/FFmpeg cannot open it)", path);
+    throw InputError("not a readable video: OpenCV/FFmpeg cannot open it, no decodable frame",
+                     path);
 
   // The container's frame count (CAP_PROP_FRAME_COUNT) is an estimate that can be wrong, so
   // count the decodable frames: the first is decoded fully, the rest only grabbed.

@@ -15,7 +15,9 @@ namespace pbve {
 class Footage {
  public:
   /// A video file readable by OpenCV's videoio (FFmpeg backend). Throws InputError naming the
-  /// file when it is missing, unreadable, or has no decodable frame.
+  /// file when it is missing, unreadable, or has no decodable frame. The frame count is the
+  /// number of frames that decode: the file is decoded once on opening, because the count in
+  /// the container's header can be wrong.
   static Footage open_video(const std::filesystem::path& path);
   /// An image sequence given as a printf pattern, e.g. "frames/%04d.png"; frames are numbered
   /// from `first_index` (the first existing of 0 and 1 when -1) until the first missing file.
