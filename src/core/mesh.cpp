@@ -10,6 +10,8 @@
 #include <utility>
 #include <vector>
 
+#include <Eigen/Geometry>
+
 #include "pbve/core/error.hpp"
 
 namespace pbve {
