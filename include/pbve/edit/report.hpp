@@ -1,0 +1,60 @@
+#pragma once
+/// @file
+/// The per-run report (JSON): per-frame metrics, a summary with faithfulness warnings, and the
+/// resolved settings. See DESIGN.md ("Report").
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace pbve {
+
+/// One output frame.
+struct FrameRecord {
+  int index = 0;                 ///< output frame index (input frame numbering)
+  double violation_pct = 0.0;    ///< % of the object's pixels showing unobserved triangles
+  double visible_area_px = 0.0;  ///< object pixels in the output frame
+  double control_force = 0.0;    ///< sum of control force norms, N
+  double physical_force = 0.0;   ///< sum of the other force norms on free vertices, N
+  double solve_ms = 0.0;         ///< optimizer time for this frame
+  double frame_ms = 0.0;         ///< whole frame (simulate, optimize, render, write)
+  int iterations = 0;            ///< optimizer iterations
+  std::string status;            ///< optimizer status ("converged", "off", ...)
+  bool pose_lost = false;        ///< the input pose of this frame was `lost`
+};
+
+/// Summary over the frames.
+struct ReportSummary {
+  int frames = 0;
+  double violation_pct_mean = 0.0;
+  double violation_pct_max = 0.0;
+  /// Median over frames with a non-zero physical force of control_force / physical_force.
+  double control_to_physical_force_median = 0.0;
+  double ms_per_frame_mean = 0.0;
+  double solve_ms_mean = 0.0;
+};
+
+/// A whole report.
+struct Report {
+  std::vector<FrameRecord> frames;
+  std::vector<std::string> warnings;
+  std::string settings_yaml;  ///< the resolved scene (scene_to_yaml()); written as JSON
+  bool complete = true;       ///< false when the run stopped early (see stopped_reason)
+  std::string stopped_reason;
+  std::string engine;  ///< simulator name
+
+  ReportSummary summary() const;
+};
+
+/// Warnings about faithfulness (paper section 4.6): runs of frames where the control force
+/// exceeds `ratio` times the physical force, e.g. "control forces exceed 25% of physical
+/// forces in frames 40-52: the requested physics is not faithfully reproduced".
+std::vector<std::string> faithfulness_warnings(const std::vector<FrameRecord>& frames,
+                                               double ratio = 0.25);
+
+/// Writes the report as JSON through a temporary name renamed on success.
+void write_report(const Report& report, const std::filesystem::path& path);
+/// Reads a report written by write_report(). Throws InputError naming the file.
+Report read_report(const std::filesystem::path& path);
+
+}  // namespace pbve

@@ -1,0 +1,119 @@
+#pragma once
+/// @file
+/// The scene file (YAML): what to edit and how. See DESIGN.md ("Scene file") for the contract.
+///
+/// Relative paths are resolved against the scene file's folder. Unknown keys are an error
+/// that names the key, its line, and the nearest valid key.
+
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace pbve {
+
+/// `input:` — the footage.
+struct SceneInput {
+  std::filesystem::path video;  ///< a video file, or empty
+  std::filesystem::path image;  ///< a single picture, or empty
+  std::string sequence;         ///< an image-sequence pattern ("frames/%04d.png"), or empty
+  int frames = 0;               ///< frame count for a single picture
+  double fps = 30.0;            ///< for a single picture or a sequence
+};
+
+/// `object.anchors:` — vertices that follow the footage.
+struct SceneAnchors {
+  std::vector<int> vertices;               ///< mesh vertex ids
+  std::optional<Eigen::Vector3d> box_min;  ///< box in mesh coordinates (with box_max)
+  std::optional<Eigen::Vector3d> box_max;
+};
+
+/// `object:` — the mesh and its poses.
+struct SceneObject {
+  std::filesystem::path mesh;
+  std::filesystem::path poses;  ///< pose file (a single pose for a single picture)
+  double scale = 1.01;          ///< enlargement covering silhouette errors (paper 4.1)
+  double refine = 0.0;          ///< split edges longer than this (mesh units); 0 = off
+  SceneAnchors anchors;
+};
+
+/// `background:` — the plate.
+struct SceneBackground {
+  std::filesystem::path plate;  ///< a given plate image; empty = automatic
+  std::string remove;  ///< optional masks pattern ("masks/%04d.png") of extra regions to fill
+};
+
+/// A collision plane in camera coordinates.
+struct ScenePlane {
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();
+  Eigen::Vector3d normal = Eigen::Vector3d(0, -1, 0);
+  double friction = 0.5;
+};
+
+/// `simulation:` — the new physics.
+struct SceneSimulation {
+  std::string engine = "mass_spring";                     ///< mass_spring | bullet
+  std::string material = "cloth";                         ///< cloth | elastic | stiff | rigid
+  Eigen::Vector3d gravity = Eigen::Vector3d(0, 9.81, 0);  ///< m/s^2, camera frame
+  std::optional<ScenePlane> ground;
+  std::vector<ScenePlane> planes;  ///< extra collision planes
+  int substeps = 10;
+  /// Any other numeric key: a material parameter override, checked by the engine
+  /// (key -> value and the line it was given on, for messages).
+  std::map<std::string, std::pair<double, int>> parameters;
+};
+
+/// `control:` — the optimizer.
+struct SceneControl {
+  bool enabled = true;
+  double weight_visibility = 1.0;
+  double weight_force = 0.001;
+  double weight_temporal = 0.001;
+  int window = 1;
+  std::string solver = "slsqp";     ///< slsqp | mma | lbfgs | cobyla | ipopt
+  std::string gradient = "auto";    ///< auto | central | adjoint
+  std::string active_set = "auto";  ///< auto | all
+  int max_iterations = 50;
+  bool warm_start = true;
+  double margin = 0.05;    ///< facing margin of the smooth visibility term
+  double max_force = 0.0;  ///< bound on each force component (N); 0 = none
+  /// Key -> line of every key given under `control:` (for messages about combinations).
+  std::map<std::string, int> given;
+};
+
+/// `output:`.
+struct SceneOutput {
+  std::filesystem::path video;
+  std::filesystem::path report;
+};
+
+/// A parsed scene file with absolute paths.
+struct Scene {
+  std::filesystem::path file;  ///< the scene file itself
+  SceneInput input;
+  double fx = 0, fy = 0, cx = 0, cy = 0;  ///< `camera:` intrinsics, pixels
+  SceneObject object;
+  SceneBackground background;
+  SceneSimulation simulation;
+  SceneControl control;
+  SceneOutput output;
+};
+
+/// Parses a scene file. Throws InputError naming the file, the line and the key for YAML
+/// syntax errors, unknown keys (with the nearest valid key), wrong types, missing required
+/// keys (input, camera, object.mesh, object.poses, output.video) and out-of-range values.
+Scene load_scene(const std::filesystem::path& path);
+
+/// Parses scene text as if read from `path` (relative paths resolve against its folder).
+Scene parse_scene(const std::string& text, const std::filesystem::path& path);
+
+/// The scene as YAML text (absolute paths), e.g. for the report's `settings`.
+std::string scene_to_yaml(const Scene& scene);
+
+/// Of `candidates`, the one nearest to `key` by edit distance (empty if none is close).
+std::string nearest_key(const std::string& key, const std::vector<std::string>& candidates);
+
+}  // namespace pbve

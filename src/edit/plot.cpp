@@ -1,0 +1,125 @@
+#include "pbve/edit/plot.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include <opencv2/imgproc.hpp>
+
+namespace pbve {
+
+namespace {
+
+const cv::Scalar kInk(40, 40, 40);
+const cv::Scalar kGrid(225, 225, 225);
+// Colour per report (BGR): blue-ish, orange-ish, green, purple.
+const cv::Scalar kColours[] = {{180, 110, 30}, {30, 120, 230}, {60, 160, 60}, {160, 60, 150}};
+
+std::string fmt(double v) {
+  char buf[32];
+  if (v != 0.0 && (std::abs(v) >= 1e4 || std::abs(v) < 1e-2))
+    std::snprintf(buf, sizeof buf, "%.0e", v);
+  else
+    std::snprintf(buf, sizeof buf, "%.3g", v);
+  return buf;
+}
+
+struct Panel {
+  cv::Rect box;
+  double x0, x1, y0, y1;
+  bool log_y;
+  cv::Point map(double x, double y) const {
+    const double fx = (x - x0) / std::max(x1 - x0, 1e-12);
+    double fy;
+    if (log_y) {
+      const double ly = std::log10(std::max(y, std::pow(10.0, y0)));
+      fy = (ly - y0) / std::max(y1 - y0, 1e-12);
+    } else {
+      fy = (y - y0) / std::max(y1 - y0, 1e-12);
+    }
+    fy = std::clamp(fy, 0.0, 1.0);
+    return {box.x + static_cast<int>(std::lround(fx * box.width)),
+            box.y + box.height - static_cast<int>(std::lround(fy * box.height))};
+  }
+};
+
+void axes(cv::Mat& img, const Panel& p, const std::string& title, const std::string& ylabel) {
+  const int ticks = 5;
+  for (int i = 0; i <= ticks; ++i) {
+    const double t = static_cast<double>(i) / ticks;
+    const int y = p.box.y + p.box.height - static_cast<int>(t * p.box.height);
+    cv::line(img, {p.box.x, y}, {p.box.x + p.box.width, y}, kGrid, 1);
+    const double v = p.log_y ? std::pow(10.0, p.y0 + t * (p.y1 - p.y0)) : p.y0 + t * (p.y1 - p.y0);
+    cv::putText(img, fmt(v), {p.box.x - 70, y + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1,
+                cv::LINE_AA);
+    const int x = p.box.x + static_cast<int>(t * p.box.width);
+    cv::putText(img, fmt(std::round(p.x0 + t * (p.x1 - p.x0))),
+                {x - 10, p.box.y + p.box.height + 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1,
+                cv::LINE_AA);
+  }
+  cv::rectangle(img, p.box, kInk, 1);
+  cv::putText(img, title, {p.box.x, p.box.y - 12}, cv::FONT_HERSHEY_SIMPLEX, 0.6, kInk, 1,
+              cv::LINE_AA);
+  cv::putText(img, ylabel,
+              {p.box.x + p.box.width - 8 * static_cast<int>(ylabel.size()) - 10, p.box.y - 12},
+              cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1, cv::LINE_AA);
+}
+
+void polyline(cv::Mat& img, const Panel& p, const std::vector<FrameRecord>& frames,
+              double FrameRecord::*field, const cv::Scalar& colour, bool dashed) {
+  std::vector<cv::Point> pts;
+  for (const FrameRecord& f : frames) pts.push_back(p.map(f.index, f.*field));
+  for (size_t i = 1; i < pts.size(); ++i) {
+    if (dashed && (i / 3) % 2) continue;
+    cv::line(img, pts[i - 1], pts[i], colour, 2, cv::LINE_AA);
+  }
+}
+
+}  // namespace
+
+cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::string>& labels,
+                     int width, int height) {
+  cv::Mat img(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  double x0 = 1e300, x1 = -1e300, vmax = 0.0, fmin = 1e300, fmax = 0.0;
+  for (const Report& r : reports)
+    for (const FrameRecord& f : r.frames) {
+      x0 = std::min(x0, static_cast<double>(f.index));
+      x1 = std::max(x1, static_cast<double>(f.index));
+      vmax = std::max(vmax, f.violation_pct);
+      for (double v : {f.control_force, f.physical_force}) {
+        if (v > 0) fmin = std::min(fmin, v);
+        fmax = std::max(fmax, v);
+      }
+    }
+  if (x0 > x1) x0 = 0, x1 = 1;
+  if (x1 == x0) x1 = x0 + 1;
+  if (fmax <= 0) fmin = 1e-3, fmax = 1.0;
+  const int left = 90, right = 30, top = 50, gap = 80, bottom = 70;
+  const int ph = (height - top - gap - bottom) / 2;
+  Panel viol{{left, top, width - left - right, ph}, x0, x1, 0.0, std::max(1.0, vmax * 1.1), false};
+  Panel force{{left, top + ph + gap, width - left - right, ph},
+              x0,
+              x1,
+              std::floor(std::log10(fmin)),
+              std::ceil(std::log10(fmax * 1.01)),
+              true};
+  if (force.y1 <= force.y0) force.y1 = force.y0 + 1;
+  axes(img, viol, "Area of violating triangles (% of visible object area) per frame", "%");
+  axes(img, force, "Control force (solid) and physical force (dashed) per frame", "N (log)");
+  cv::putText(img, "frame", {width / 2 - 20, height - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.5, kInk, 1,
+              cv::LINE_AA);
+  for (size_t i = 0; i < reports.size(); ++i) {
+    const cv::Scalar c = kColours[i % 4];
+    polyline(img, viol, reports[i].frames, &FrameRecord::violation_pct, c, false);
+    polyline(img, force, reports[i].frames, &FrameRecord::control_force, c, false);
+    polyline(img, force, reports[i].frames, &FrameRecord::physical_force, c, true);
+    const std::string label = i < labels.size() ? labels[i] : "run " + std::to_string(i + 1);
+    const int ly = top + 20 + 22 * static_cast<int>(i);
+    cv::line(img, {width - right - 260, ly - 5}, {width - right - 230, ly - 5}, c, 3, cv::LINE_AA);
+    cv::putText(img, label, {width - right - 222, ly}, cv::FONT_HERSHEY_SIMPLEX, 0.5, kInk, 1,
+                cv::LINE_AA);
+  }
+  return img;
+}
+
+}  // namespace pbve

@@ -1,0 +1,443 @@
+#include "pbve/edit/scene.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include <yaml-cpp/yaml.h>
+
+#include "pbve/core/error.hpp"
+
+namespace pbve {
+
+namespace fs = std::filesystem;
+
+std::string nearest_key(const std::string& key, const std::vector<std::string>& candidates) {
+  auto distance = [](const std::string& a, const std::string& b) {
+    std::vector<size_t> prev(b.size() + 1), cur(b.size() + 1);
+    for (size_t j = 0; j <= b.size(); ++j) prev[j] = j;
+    for (size_t i = 1; i <= a.size(); ++i) {
+      cur[0] = i;
+      for (size_t j = 1; j <= b.size(); ++j) {
+        const size_t sub = prev[j - 1] + (std::tolower(a[i - 1]) == std::tolower(b[j - 1]) ? 0 : 1);
+        cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, sub});
+      }
+      std::swap(prev, cur);
+    }
+    return prev[b.size()];
+  };
+  std::string best;
+  size_t best_d = std::max<size_t>(2, key.size() / 2) + 1;
+  for (const auto& c : candidates) {
+    const size_t d = distance(key, c);
+    if (d < best_d) {
+      best_d = d;
+      best = c;
+    }
+  }
+  return best;
+}
+
+namespace {
+
+/// Reads typed values from YAML nodes, throwing InputError with file, line and key.
+class Reader {
+ public:
+  explicit Reader(fs::path file) : m_file(std::move(file)) {}
+
+  [[noreturn]] void fail(const YAML::Node& node, const std::string& key,
+                         const std::string& message) const {
+    const int line = node.IsDefined() ? node.Mark().line + 1 : 0;
+    throw InputError(message, m_file, line > 0 ? line : 0, "key '" + key + "'");
+  }
+
+  /// Checks that `node` is a map whose keys are all in `allowed`.
+  void check_map(const YAML::Node& node, const std::string& section,
+                 const std::vector<std::string>& allowed) const {
+    if (!node.IsMap()) fail(node, section, "expected a mapping of keys");
+    for (const auto& kv : node) {
+      const std::string k = kv.first.as<std::string>();
+      if (std::find(allowed.begin(), allowed.end(), k) != allowed.end()) continue;
+      std::string msg = "unknown key";
+      const std::string near = nearest_key(k, allowed);
+      if (!near.empty()) msg += " (did you mean '" + near + "'?)";
+      std::string valid;
+      for (const auto& a : allowed) valid += (valid.empty() ? "" : ", ") + a;
+      msg += "; valid keys here: " + valid;
+      throw InputError(msg, m_file, kv.first.Mark().line + 1, "key '" + join(section, k) + "'");
+    }
+  }
+
+  static std::string join(const std::string& section, const std::string& k) {
+    return section.empty() ? k : section + "." + k;
+  }
+
+  double number(const YAML::Node& n, const std::string& key) const {
+    if (!n.IsScalar()) fail(n, key, "expected a number");
+    double v = 0;
+    const std::string s = n.Scalar();
+    std::istringstream is(s);
+    is >> v;
+    if (is.fail() || !is.eof()) {
+      // yaml-cpp accepts .inf / .nan spellings through as<double>.
+      try {
+        v = n.as<double>();
+      } catch (const YAML::Exception&) {
+        fail(n, key, "expected a number, found '" + s + "'");
+      }
+    }
+    if (!std::isfinite(v)) fail(n, key, "expected a finite number, found '" + s + "'");
+    return v;
+  }
+  double positive(const YAML::Node& n, const std::string& key) const {
+    const double v = number(n, key);
+    if (!(v > 0)) fail(n, key, "must be positive, found " + n.Scalar());
+    return v;
+  }
+  int integer(const YAML::Node& n, const std::string& key) const {
+    const double v = number(n, key);
+    if (v != std::floor(v) || std::abs(v) > 2e9)
+      fail(n, key, "expected an integer, found '" + n.Scalar() + "'");
+    return static_cast<int>(v);
+  }
+  bool boolean(const YAML::Node& n, const std::string& key) const {
+    if (!n.IsScalar()) fail(n, key, "expected true or false");
+    const std::string s = n.Scalar();
+    if (s == "true" || s == "yes" || s == "on") return true;
+    if (s == "false" || s == "no" || s == "off") return false;
+    fail(n, key, "expected true or false, found '" + s + "'");
+  }
+  std::string string(const YAML::Node& n, const std::string& key) const {
+    if (!n.IsScalar() || n.Scalar().empty()) fail(n, key, "expected a non-empty string");
+    return n.Scalar();
+  }
+  std::string choice(const YAML::Node& n, const std::string& key,
+                     const std::vector<std::string>& options) const {
+    const std::string s = string(n, key);
+    if (std::find(options.begin(), options.end(), s) != options.end()) return s;
+    std::string msg = "'" + s + "' is not one of ";
+    for (size_t i = 0; i < options.size(); ++i) msg += (i ? ", " : "") + options[i];
+    const std::string near = nearest_key(s, options);
+    if (!near.empty()) msg += " (did you mean '" + near + "'?)";
+    fail(n, key, msg);
+  }
+  fs::path path(const YAML::Node& n, const std::string& key) const {
+    const fs::path p = string(n, key);
+    return p.is_absolute() ? p : (m_file.parent_path() / p).lexically_normal();
+  }
+  Eigen::Vector3d vec3(const YAML::Node& n, const std::string& key) const {
+    if (!n.IsSequence() || n.size() != 3) fail(n, key, "expected a list of 3 numbers");
+    return {number(n[0], key), number(n[1], key), number(n[2], key)};
+  }
+  ScenePlane plane(const YAML::Node& n, const std::string& key) const {
+    check_map(n, key, {"point", "normal", "friction"});
+    ScenePlane p;
+    if (n["point"]) p.point = vec3(n["point"], key + ".point");
+    if (n["normal"]) {
+      p.normal = vec3(n["normal"], key + ".normal");
+      if (!(p.normal.norm() > 1e-12)) fail(n["normal"], key + ".normal", "must not be zero");
+      p.normal.normalize();
+    }
+    if (n["friction"]) {
+      p.friction = number(n["friction"], key + ".friction");
+      if (p.friction < 0) fail(n["friction"], key + ".friction", "must not be negative");
+    }
+    return p;
+  }
+  const fs::path& file() const { return m_file; }
+
+ private:
+  fs::path m_file;
+};
+
+void require(const Reader& r, const YAML::Node& parent, const char* name,
+             const std::string& section) {
+  if (!parent[name])
+    throw InputError("missing required key", r.file(), parent.Mark().line + 1,
+                     "key '" + Reader::join(section, name) + "'");
+}
+
+}  // namespace
+
+Scene parse_scene(const std::string& text, const fs::path& path) {
+  Reader r(path);
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::ParserException& e) {
+    throw InputError("YAML syntax error: " + e.msg, path, e.mark.line + 1);
+  }
+  if (!root.IsDefined() || root.IsNull()) throw InputError("the scene file is empty", path);
+  r.check_map(root, "",
+              {"input", "camera", "object", "background", "simulation", "control", "output"});
+  Scene s;
+  s.file = path;
+
+  require(r, root, "input", "");
+  {
+    const YAML::Node n = root["input"];
+    r.check_map(n, "input", {"video", "image", "sequence", "frames", "fps"});
+    const int given = (n["video"] ? 1 : 0) + (n["image"] ? 1 : 0) + (n["sequence"] ? 1 : 0);
+    if (given != 1) r.fail(n, "input", "give exactly one of video, image or sequence");
+    if (n["video"]) s.input.video = r.path(n["video"], "input.video");
+    if (n["image"]) {
+      s.input.image = r.path(n["image"], "input.image");
+      if (!n["frames"]) r.fail(n, "input.frames", "a single image needs a frame count");
+    }
+    if (n["sequence"]) {
+      const std::string pat = r.string(n["sequence"], "input.sequence");
+      const fs::path p = pat;
+      s.input.sequence = (p.is_absolute() ? p : path.parent_path() / p).lexically_normal().string();
+    }
+    if (n["frames"]) {
+      if (!n["image"]) r.fail(n["frames"], "input.frames", "only used with input.image");
+      s.input.frames = r.integer(n["frames"], "input.frames");
+      if (s.input.frames < 1) r.fail(n["frames"], "input.frames", "must be at least 1");
+    }
+    if (n["fps"]) s.input.fps = r.positive(n["fps"], "input.fps");
+  }
+
+  require(r, root, "camera", "");
+  {
+    const YAML::Node n = root["camera"];
+    r.check_map(n, "camera", {"fx", "fy", "cx", "cy"});
+    for (const char* k : {"fx", "fy", "cx", "cy"}) require(r, n, k, "camera");
+    s.fx = r.positive(n["fx"], "camera.fx");
+    s.fy = r.positive(n["fy"], "camera.fy");
+    s.cx = r.number(n["cx"], "camera.cx");
+    s.cy = r.number(n["cy"], "camera.cy");
+  }
+
+  require(r, root, "object", "");
+  {
+    const YAML::Node n = root["object"];
+    r.check_map(n, "object", {"mesh", "poses", "scale", "refine", "anchors"});
+    require(r, n, "mesh", "object");
+    require(r, n, "poses", "object");
+    s.object.mesh = r.path(n["mesh"], "object.mesh");
+    s.object.poses = r.path(n["poses"], "object.poses");
+    if (n["scale"]) s.object.scale = r.positive(n["scale"], "object.scale");
+    if (n["refine"]) s.object.refine = r.positive(n["refine"], "object.refine");
+    if (n["anchors"]) {
+      const YAML::Node a = n["anchors"];
+      r.check_map(a, "object.anchors", {"vertices", "box"});
+      if (a["vertices"]) {
+        if (!a["vertices"].IsSequence())
+          r.fail(a["vertices"], "object.anchors.vertices", "expected a list of vertex indices");
+        for (const auto& v : a["vertices"]) {
+          const int id = r.integer(v, "object.anchors.vertices");
+          if (id < 0) r.fail(v, "object.anchors.vertices", "vertex index must not be negative");
+          s.object.anchors.vertices.push_back(id);
+        }
+      }
+      if (a["box"]) {
+        const YAML::Node b = a["box"];
+        r.check_map(b, "object.anchors.box", {"min", "max"});
+        require(r, b, "min", "object.anchors.box");
+        require(r, b, "max", "object.anchors.box");
+        s.object.anchors.box_min = r.vec3(b["min"], "object.anchors.box.min");
+        s.object.anchors.box_max = r.vec3(b["max"], "object.anchors.box.max");
+        if ((s.object.anchors.box_min->array() > s.object.anchors.box_max->array()).any())
+          r.fail(b, "object.anchors.box", "min must not exceed max in any coordinate");
+      }
+    }
+  }
+
+  if (root["background"]) {
+    const YAML::Node n = root["background"];
+    r.check_map(n, "background", {"plate", "remove"});
+    if (n["plate"]) s.background.plate = r.path(n["plate"], "background.plate");
+    if (n["remove"]) {
+      const fs::path p = r.string(n["remove"], "background.remove");
+      s.background.remove =
+          (p.is_absolute() ? p : path.parent_path() / p).lexically_normal().string();
+    }
+  }
+
+  if (root["simulation"]) {
+    const YAML::Node n = root["simulation"];
+    if (!n.IsMap()) r.fail(n, "simulation", "expected a mapping of keys");
+    for (const auto& kv : n) {
+      const std::string k = kv.first.as<std::string>();
+      const std::string key = "simulation." + k;
+      const YAML::Node& v = kv.second;
+      if (k == "engine") {
+        s.simulation.engine = r.choice(v, key, {"mass_spring", "bullet"});
+      } else if (k == "material") {
+        s.simulation.material = r.choice(v, key, {"cloth", "elastic", "stiff", "rigid"});
+      } else if (k == "gravity") {
+        s.simulation.gravity = r.vec3(v, key);
+      } else if (k == "ground") {
+        s.simulation.ground = r.plane(v, key);
+      } else if (k == "planes") {
+        if (!v.IsSequence()) r.fail(v, key, "expected a list of planes");
+        for (const auto& p : v) s.simulation.planes.push_back(r.plane(p, key));
+      } else if (k == "substeps") {
+        s.simulation.substeps = r.integer(v, key);
+        if (s.simulation.substeps < 1 || s.simulation.substeps > 10000)
+          r.fail(v, key, "must be between 1 and 10000");
+      } else if (v.IsScalar()) {
+        // A material parameter; its name and range are checked by the engine.
+        s.simulation.parameters[k] = {r.number(v, key), v.Mark().line + 1};
+      } else {
+        r.fail(v, key, "expected a number (a material parameter)");
+      }
+    }
+  }
+
+  if (root["control"]) {
+    const YAML::Node n = root["control"];
+    r.check_map(n, "control",
+                {"enabled", "weights", "window", "solver", "gradient", "active_set",
+                 "max_iterations", "warm_start", "margin", "max_force"});
+    SceneControl& c = s.control;
+    for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
+    if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
+    if (n["weights"]) {
+      const YAML::Node w = n["weights"];
+      r.check_map(w, "control.weights", {"visibility", "force", "temporal"});
+      auto weight = [&](const char* k, double& out) {
+        if (!w[k]) return;
+        out = r.number(w[k], std::string("control.weights.") + k);
+        if (out < 0) r.fail(w[k], std::string("control.weights.") + k, "must not be negative");
+      };
+      weight("visibility", c.weight_visibility);
+      weight("force", c.weight_force);
+      weight("temporal", c.weight_temporal);
+    }
+    if (n["window"]) {
+      c.window = r.integer(n["window"], "control.window");
+      if (c.window < 1 || c.window > 100)
+        r.fail(n["window"], "control.window", "must be between 1 and 100");
+    }
+    if (n["solver"])
+      c.solver =
+          r.choice(n["solver"], "control.solver", {"slsqp", "mma", "lbfgs", "cobyla", "ipopt"});
+    if (n["gradient"])
+      c.gradient = r.choice(n["gradient"], "control.gradient", {"auto", "central", "adjoint"});
+    if (n["active_set"])
+      c.active_set = r.choice(n["active_set"], "control.active_set", {"auto", "all"});
+    if (n["max_iterations"]) {
+      c.max_iterations = r.integer(n["max_iterations"], "control.max_iterations");
+      if (c.max_iterations < 1)
+        r.fail(n["max_iterations"], "control.max_iterations", "must be at least 1");
+    }
+    if (n["warm_start"]) c.warm_start = r.boolean(n["warm_start"], "control.warm_start");
+    if (n["margin"]) {
+      c.margin = r.number(n["margin"], "control.margin");
+      if (c.margin < 0 || c.margin >= 1) r.fail(n["margin"], "control.margin", "must be in [0, 1)");
+    }
+    if (n["max_force"]) {
+      c.max_force = r.number(n["max_force"], "control.max_force");
+      if (c.max_force < 0) r.fail(n["max_force"], "control.max_force", "must not be negative");
+    }
+  }
+
+  require(r, root, "output", "");
+  {
+    const YAML::Node n = root["output"];
+    r.check_map(n, "output", {"video", "report"});
+    require(r, n, "video", "output");
+    s.output.video = r.path(n["video"], "output.video");
+    s.output.report = n["report"] ? r.path(n["report"], "output.report")
+                                  : fs::path(s.output.video).replace_extension(".json");
+  }
+  return s;
+}
+
+Scene load_scene(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError("cannot open the scene file", path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse_scene(ss.str(), fs::absolute(path));
+}
+
+std::string scene_to_yaml(const Scene& s) {
+  YAML::Emitter e;
+  auto vec = [&](const Eigen::Vector3d& v) {
+    e << YAML::Flow << YAML::BeginSeq << v.x() << v.y() << v.z() << YAML::EndSeq;
+  };
+  auto plane = [&](const ScenePlane& p) {
+    e << YAML::BeginMap << YAML::Key << "point" << YAML::Value;
+    vec(p.point);
+    e << YAML::Key << "normal" << YAML::Value;
+    vec(p.normal);
+    e << YAML::Key << "friction" << YAML::Value << p.friction << YAML::EndMap;
+  };
+  e << YAML::BeginMap;
+  e << YAML::Key << "input" << YAML::Value << YAML::BeginMap;
+  if (!s.input.video.empty()) e << YAML::Key << "video" << YAML::Value << s.input.video.string();
+  if (!s.input.image.empty()) {
+    e << YAML::Key << "image" << YAML::Value << s.input.image.string();
+    e << YAML::Key << "frames" << YAML::Value << s.input.frames;
+  }
+  if (!s.input.sequence.empty()) e << YAML::Key << "sequence" << YAML::Value << s.input.sequence;
+  if (s.input.video.empty()) e << YAML::Key << "fps" << YAML::Value << s.input.fps;
+  e << YAML::EndMap;
+  e << YAML::Key << "camera" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "fx"
+    << YAML::Value << s.fx << YAML::Key << "fy" << YAML::Value << s.fy << YAML::Key << "cx"
+    << YAML::Value << s.cx << YAML::Key << "cy" << YAML::Value << s.cy << YAML::EndMap;
+  e << YAML::Key << "object" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "mesh" << YAML::Value << s.object.mesh.string();
+  e << YAML::Key << "poses" << YAML::Value << s.object.poses.string();
+  e << YAML::Key << "scale" << YAML::Value << s.object.scale;
+  if (s.object.refine > 0) e << YAML::Key << "refine" << YAML::Value << s.object.refine;
+  e << YAML::Key << "anchors" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "vertices" << YAML::Value << YAML::Flow << s.object.anchors.vertices;
+  if (s.object.anchors.box_min) {
+    e << YAML::Key << "box" << YAML::Value << YAML::BeginMap << YAML::Key << "min" << YAML::Value;
+    vec(*s.object.anchors.box_min);
+    e << YAML::Key << "max" << YAML::Value;
+    vec(*s.object.anchors.box_max);
+    e << YAML::EndMap;
+  }
+  e << YAML::EndMap << YAML::EndMap;
+  e << YAML::Key << "background" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "plate" << YAML::Value
+    << (s.background.plate.empty() ? std::string("automatic") : s.background.plate.string());
+  if (!s.background.remove.empty())
+    e << YAML::Key << "remove" << YAML::Value << s.background.remove;
+  e << YAML::EndMap;
+  e << YAML::Key << "simulation" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "engine" << YAML::Value << s.simulation.engine;
+  e << YAML::Key << "material" << YAML::Value << s.simulation.material;
+  e << YAML::Key << "gravity" << YAML::Value;
+  vec(s.simulation.gravity);
+  if (s.simulation.ground) {
+    e << YAML::Key << "ground" << YAML::Value;
+    plane(*s.simulation.ground);
+  }
+  if (!s.simulation.planes.empty()) {
+    e << YAML::Key << "planes" << YAML::Value << YAML::BeginSeq;
+    for (const auto& p : s.simulation.planes) plane(p);
+    e << YAML::EndSeq;
+  }
+  e << YAML::Key << "substeps" << YAML::Value << s.simulation.substeps;
+  for (const auto& [k, v] : s.simulation.parameters) e << YAML::Key << k << YAML::Value << v.first;
+  e << YAML::EndMap;
+  const SceneControl& c = s.control;
+  e << YAML::Key << "control" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "enabled" << YAML::Value << c.enabled;
+  e << YAML::Key << "weights" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
+    << "visibility" << YAML::Value << c.weight_visibility << YAML::Key << "force" << YAML::Value
+    << c.weight_force << YAML::Key << "temporal" << YAML::Value << c.weight_temporal
+    << YAML::EndMap;
+  e << YAML::Key << "window" << YAML::Value << c.window;
+  e << YAML::Key << "solver" << YAML::Value << c.solver;
+  e << YAML::Key << "gradient" << YAML::Value << c.gradient;
+  e << YAML::Key << "active_set" << YAML::Value << c.active_set;
+  e << YAML::Key << "max_iterations" << YAML::Value << c.max_iterations;
+  e << YAML::Key << "warm_start" << YAML::Value << c.warm_start;
+  e << YAML::Key << "margin" << YAML::Value << c.margin;
+  e << YAML::Key << "max_force" << YAML::Value << c.max_force;
+  e << YAML::EndMap;
+  e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
+  e << YAML::Key << "video" << YAML::Value << s.output.video.string();
+  e << YAML::Key << "report" << YAML::Value << s.output.report.string();
+  e << YAML::EndMap << YAML::EndMap;
+  return e.c_str();
+}
+
+}  // namespace pbve

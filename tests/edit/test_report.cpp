@@ -1,0 +1,104 @@
+// Report: summary statistics, faithfulness warnings, JSON round trip.
+
+#include <gtest/gtest.h>
+
+#include "pbve/core/error.hpp"
+#include "pbve/edit/report.hpp"
+#include "support/test_util.hpp"
+
+namespace {
+
+pbve::FrameRecord frame(int i, double viol, double control, double physical) {
+  pbve::FrameRecord f;
+  f.index = i;
+  f.violation_pct = viol;
+  f.control_force = control;
+  f.physical_force = physical;
+  f.frame_ms = 10.0 * (i + 1);
+  return f;
+}
+
+TEST(Report, SummaryStatistics) {
+  pbve::Report r;
+  r.frames = {frame(0, 0.0, 0.0, 1.0), frame(1, 3.0, 0.1, 1.0), frame(2, 6.0, 0.5, 1.0),
+              frame(3, 1.0, 0.3, 0.0)};  // zero physical force: left out of the ratio median
+  const pbve::ReportSummary s = r.summary();
+  EXPECT_EQ(s.frames, 4);
+  EXPECT_DOUBLE_EQ(s.violation_pct_mean, 2.5);
+  EXPECT_DOUBLE_EQ(s.violation_pct_max, 6.0);
+  EXPECT_DOUBLE_EQ(s.control_to_physical_force_median, 0.1);
+  EXPECT_DOUBLE_EQ(s.ms_per_frame_mean, 25.0);
+}
+
+TEST(Report, FaithfulnessWarningsGroupRuns) {
+  std::vector<pbve::FrameRecord> f;
+  for (int i = 0; i < 60; ++i) f.push_back(frame(i, 0, (i >= 40 && i <= 52) ? 0.5 : 0.1, 1.0));
+  f[55].control_force = 0.3;
+  const auto w = pbve::faithfulness_warnings(f, 0.25);
+  ASSERT_EQ(w.size(), 2u);
+  EXPECT_EQ(w[0],
+            "control forces exceed 25% of physical forces in frames 40-52: the requested physics "
+            "is not faithfully reproduced");
+  EXPECT_NE(w[1].find("in frame 55:"), std::string::npos) << w[1];
+}
+
+TEST(Report, JsonRoundTrip) {
+  pbve::test::TempDir dir;
+  pbve::Report r;
+  r.frames = {frame(0, 1.5, 0.2, 2.0), frame(1, 0.5, 0.1, 1.0)};
+  r.frames[1].pose_lost = true;
+  r.warnings = {"something"};
+  r.settings_yaml = "control: {solver: slsqp, window: 1}\n";
+  r.complete = false;
+  r.stopped_reason = "interrupted";
+  pbve::write_report(r, dir / "r.json");
+  EXPECT_FALSE(std::filesystem::exists(dir / "r.partial.json"));
+  const pbve::Report b = pbve::read_report(dir / "r.json");
+  ASSERT_EQ(b.frames.size(), 2u);
+  EXPECT_DOUBLE_EQ(b.frames[0].violation_pct, 1.5);
+  EXPECT_TRUE(b.frames[1].pose_lost);
+  EXPECT_FALSE(b.complete);
+  EXPECT_EQ(b.stopped_reason, "interrupted");
+  EXPECT_EQ(b.warnings, r.warnings);
+}
+
+TEST(Report, ReadingGarbageNamesTheFile) {
+  pbve::test::TempDir dir;
+  const auto p = pbve::test::write_text(dir / "bad.json", "{not json");
+  try {
+    pbve::read_report(p);
+    FAIL() << "no error";
+  } catch (const pbve::InputError& e) {
+    EXPECT_EQ(e.file(), p);
+    EXPECT_NE(std::string(e.what()).find("bad.json"), std::string::npos);
+  }
+}
+
+}  // namespace
+
+#include "pbve/edit/plot.hpp"
+
+namespace {
+
+TEST(Plot, DrawsEachRunInItsColour) {
+  pbve::Report a, b;
+  for (int i = 0; i < 30; ++i) {
+    a.frames.push_back(frame(i, 10.0 * i / 29.0, 0.0, 1.0 + i));
+    b.frames.push_back(frame(i, 0.2, 0.05 * (1 + i % 3), 1.0 + i));
+  }
+  const cv::Mat img = pbve::plot_reports({a, b}, {"unconstrained", "constrained"}, 900, 600);
+  ASSERT_EQ(img.cols, 900);
+  ASSERT_EQ(img.rows, 600);
+  // Both series colours appear (first: (180,110,30), second: (30,120,230) in BGR).
+  int first = 0, second = 0;
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) {
+      const cv::Vec3b p = img.at<cv::Vec3b>(y, x);
+      first += p == cv::Vec3b(180, 110, 30);
+      second += p == cv::Vec3b(30, 120, 230);
+    }
+  EXPECT_GT(first, 100);
+  EXPECT_GT(second, 100);
+}
+
+}  // namespace

@@ -1,0 +1,189 @@
+// Scene file parsing: every documented key, and errors that name file, line and key.
+
+#include <gtest/gtest.h>
+
+#include "pbve/core/error.hpp"
+#include "pbve/edit/scene.hpp"
+#include "support/test_util.hpp"
+
+namespace {
+
+using pbve::InputError;
+using pbve::parse_scene;
+
+const char* kFull = R"(input:   {video: clip.mp4}
+camera:  {fx: 600, fy: 610, cx: 320, cy: 240}
+object:
+  mesh: object.obj
+  poses: poses.txt
+  scale: 1.02
+  refine: 0.005
+  anchors: {vertices: [0, 5, 9], box: {min: [0, 0, 0], max: [0.1, 0.2, 0.3]}}
+background: {plate: plate.png, remove: masks/%04d.png}
+simulation:
+  engine: mass_spring
+  material: cloth
+  gravity: [0, 9.81, 0]
+  ground: {point: [0, 0.1, 0], normal: [0, -2, 0]}
+  substeps: 12
+  stretch_stiffness: 500
+control:
+  enabled: true
+  weights: {visibility: 1.0, force: 0.002, temporal: 0.003}
+  window: 3
+  solver: ipopt
+  gradient: central
+output:  {video: edited.mp4, report: report.json}
+)";
+
+std::string error_of(const std::string& text) {
+  try {
+    parse_scene(text, "/scenes/s.yaml");
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+TEST(Scene, ParsesEveryDocumentedKey) {
+  const pbve::Scene s = parse_scene(kFull, "/scenes/s.yaml");
+  EXPECT_EQ(s.input.video, "/scenes/clip.mp4");
+  EXPECT_EQ(s.fy, 610);
+  EXPECT_EQ(s.object.mesh, "/scenes/object.obj");
+  EXPECT_EQ(s.object.poses, "/scenes/poses.txt");
+  EXPECT_DOUBLE_EQ(s.object.scale, 1.02);
+  EXPECT_DOUBLE_EQ(s.object.refine, 0.005);
+  EXPECT_EQ(s.object.anchors.vertices, (std::vector<int>{0, 5, 9}));
+  ASSERT_TRUE(s.object.anchors.box_max.has_value());
+  EXPECT_DOUBLE_EQ(s.object.anchors.box_max->z(), 0.3);
+  EXPECT_EQ(s.background.plate, "/scenes/plate.png");
+  EXPECT_EQ(s.background.remove, "/scenes/masks/%04d.png");
+  EXPECT_EQ(s.simulation.material, "cloth");
+  ASSERT_TRUE(s.simulation.ground.has_value());
+  EXPECT_DOUBLE_EQ(s.simulation.ground->normal.y(), -1.0);  // normalized
+  EXPECT_EQ(s.simulation.substeps, 12);
+  ASSERT_EQ(s.simulation.parameters.count("stretch_stiffness"), 1u);
+  EXPECT_DOUBLE_EQ(s.simulation.parameters.at("stretch_stiffness").first, 500);
+  EXPECT_EQ(s.simulation.parameters.at("stretch_stiffness").second, 16);  // its line
+  EXPECT_EQ(s.control.window, 3);
+  EXPECT_EQ(s.control.solver, "ipopt");
+  EXPECT_EQ(s.control.gradient, "central");
+  EXPECT_DOUBLE_EQ(s.control.weight_temporal, 0.003);
+  EXPECT_EQ(s.output.video, "/scenes/edited.mp4");
+  EXPECT_EQ(s.output.report, "/scenes/report.json");
+}
+
+TEST(Scene, DefaultsForOptionalSections) {
+  const pbve::Scene s = parse_scene(
+      "input: {image: p.png, frames: 90}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\n"
+      "object: {mesh: m.ply, poses: p.txt}\noutput: {video: o.mkv}\n",
+      "/x/s.yaml");
+  EXPECT_EQ(s.input.frames, 90);
+  EXPECT_DOUBLE_EQ(s.object.scale, 1.01);
+  EXPECT_TRUE(s.control.enabled);
+  EXPECT_EQ(s.simulation.engine, "mass_spring");
+  EXPECT_EQ(s.output.report, "/x/o.json");
+  EXPECT_TRUE(s.background.plate.empty());
+}
+
+TEST(Scene, RoundTripsThroughYaml) {
+  const pbve::Scene a = parse_scene(kFull, "/scenes/s.yaml");
+  const pbve::Scene b = parse_scene(pbve::scene_to_yaml(a), "/elsewhere/s.yaml");
+  EXPECT_EQ(a.object.mesh, b.object.mesh);
+  EXPECT_EQ(a.control.solver, b.control.solver);
+  ASSERT_EQ(b.simulation.parameters.count("stretch_stiffness"), 1u);
+  EXPECT_EQ(b.simulation.parameters.at("stretch_stiffness").first, 500);
+  EXPECT_EQ(a.object.anchors.vertices, b.object.anchors.vertices);
+  EXPECT_EQ(a.simulation.substeps, b.simulation.substeps);
+}
+
+TEST(SceneErrors, UnknownTopLevelKeySuggestsNearest) {
+  std::string text = kFull;
+  text.replace(text.find("output:"), 7, "ouptut:");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find("/scenes/s.yaml:23"), std::string::npos) << e;
+  EXPECT_NE(e.find("'ouptut'"), std::string::npos) << e;
+  EXPECT_NE(e.find("did you mean 'output'"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, MistypedNestedKeyNamesFullKeyAndLine) {
+  std::string text = kFull;
+  text.replace(text.find("refine:"), 7, "refien:");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":7:"), std::string::npos) << e;
+  EXPECT_NE(e.find("object.refien"), std::string::npos) << e;
+  EXPECT_NE(e.find("did you mean 'refine'"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, UnknownSolverSuggests) {
+  std::string text = kFull;
+  text.replace(text.find("ipopt"), 5, "slsqq");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":21:"), std::string::npos) << e;
+  EXPECT_NE(e.find("control.solver"), std::string::npos) << e;
+  EXPECT_NE(e.find("did you mean 'slsqp'"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, WrongTypeNamesKey) {
+  std::string text = kFull;
+  text.replace(text.find("fx: 600"), 7, "fx: six");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":2:"), std::string::npos) << e;
+  EXPECT_NE(e.find("camera.fx"), std::string::npos) << e;
+  EXPECT_NE(e.find("'six'"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, NonPositiveValue) {
+  std::string text = kFull;
+  text.replace(text.find("scale: 1.02"), 11, "scale: -1.0");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":6:"), std::string::npos) << e;
+  EXPECT_NE(e.find("object.scale"), std::string::npos) << e;
+  EXPECT_NE(e.find("positive"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, MissingRequiredKey) {
+  const std::string e = error_of(
+      "input: {video: a.mp4}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\nobject: {mesh: m.obj}\n"
+      "output: {video: o.mp4}\n");
+  EXPECT_NE(e.find("object.poses"), std::string::npos) << e;
+  EXPECT_NE(e.find("missing"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, YamlSyntaxErrorHasLine) {
+  const std::string e = error_of("input: {video: a.mp4}\ncamera: {fx: 1, fy: [1\n");
+  EXPECT_NE(e.find("/scenes/s.yaml:"), std::string::npos) << e;
+  EXPECT_NE(e.find("YAML syntax error"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, TwoInputsAreAmbiguous) {
+  const std::string e = error_of(
+      "input: {video: a.mp4, image: b.png, frames: 3}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\n"
+      "object: {mesh: m.obj, poses: p.txt}\noutput: {video: o.mp4}\n");
+  EXPECT_NE(e.find(":1:"), std::string::npos) << e;
+  EXPECT_NE(e.find("exactly one"), std::string::npos) << e;
+}
+
+TEST(SceneErrors, MissingFileNamesIt) {
+  try {
+    pbve::load_scene("/nonexistent/scene.yaml");
+    FAIL() << "no error";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.file(), "/nonexistent/scene.yaml");
+  }
+}
+
+TEST(SceneErrors, NegativeAnchorIndex) {
+  std::string text = kFull;
+  text.replace(text.find("[0, 5, 9]"), 9, "[0, -5, 9]");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":8:"), std::string::npos) << e;
+  EXPECT_NE(e.find("object.anchors.vertices"), std::string::npos) << e;
+}
+
+TEST(SceneNearestKey, FindsCloseAndRejectsFar) {
+  EXPECT_EQ(pbve::nearest_key("substep", {"substeps", "gravity"}), "substeps");
+  EXPECT_EQ(pbve::nearest_key("zzzzzzzz", {"substeps", "gravity"}), "");
+}
+
+}  // namespace
