@@ -12,6 +12,8 @@
 
 #include <Eigen/Geometry>
 
+#include <Eigen/Geometry>
+
 #include "pbve/core/error.hpp"
 
 namespace pbve {
