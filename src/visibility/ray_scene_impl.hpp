@@ -1,0 +1,113 @@
+#pragma once
+// Implementation details of RayScene shared by the visibility sources.
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+
+#include <embree3/rtcore.h>
+#include <tbb/blocked_range2d.h>
+#include <tbb/parallel_for.h>
+
+#include "pbve/visibility/ray_scene.hpp"
+
+namespace pbve {
+
+struct RayScene::Impl {
+  std::shared_ptr<RTCDeviceTy> device;  // process-wide device
+  RTCScene scene = nullptr;
+  RTCGeometry geometry = nullptr;
+  float* vertex_buffer = nullptr;  // owned by the geometry, #V x 3 floats (+ padding)
+  Vertices vertices;
+  Triangles triangles;
+
+  Impl();
+  ~Impl();
+  Impl(const Impl&) = delete;
+  Impl& operator=(const Impl&) = delete;
+  void release();
+  void build(const Vertices& v, const Triangles& t);
+  void refit(const Vertices& v, UpdateMode mode);
+  void commit();
+};
+
+namespace detail {
+
+/// Side length (in samples) of the square tiles processed as one parallel task.
+inline constexpr int primary_tile = 16;
+
+/// Casts the primary rays of the (supersample x supersample per pixel) grid of `camera` in
+/// 4 x 4 packets (rtcIntersect16, coherent context) over tiles processed in parallel (TBB).
+/// For every sample calls visit(x, y, triangle, u, v, depth, ng_dot_dir) with triangle -1 on a
+/// miss; ng_dot_dir is the dot product of Embree's geometric normal and the ray direction.
+/// `visit` runs concurrently from several threads: it may only write per-sample or
+/// thread-local state.
+template <class Visit>
+void for_each_primary(const RayScene::Impl& impl, const Camera& camera, int supersample,
+                      const Visit& visit) {
+  const int width = camera.width * supersample;
+  const int height = camera.height * supersample;
+  if (width <= 0 || height <= 0) return;
+  const double inv_ss = 1.0 / supersample;
+  const float inf = std::numeric_limits<float>::infinity();
+  tbb::parallel_for(
+      tbb::blocked_range2d<int>(0, (height + primary_tile - 1) / primary_tile, 1, 0,
+                                (width + primary_tile - 1) / primary_tile, 1),
+      [&](const tbb::blocked_range2d<int>& range) {
+        RTCIntersectContext context;
+        rtcInitIntersectContext(&context);
+        context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+        alignas(64) RTCRayHit16 packet;
+        alignas(64) int valid[16];
+        for (int ty = range.rows().begin(); ty != range.rows().end(); ++ty) {
+          for (int tx = range.cols().begin(); tx != range.cols().end(); ++tx) {
+            const int x_end = std::min(width, (tx + 1) * primary_tile);
+            const int y_end = std::min(height, (ty + 1) * primary_tile);
+            for (int py = ty * primary_tile; py < y_end; py += 4) {
+              for (int px = tx * primary_tile; px < x_end; px += 4) {
+                for (int k = 0; k < 16; ++k) {
+                  const int x = px + (k & 3);
+                  const int y = py + (k >> 2);
+                  valid[k] = (x < width && y < height) ? -1 : 0;
+                  const double pix_x = (x + 0.5) * inv_ss - 0.5;
+                  const double pix_y = (y + 0.5) * inv_ss - 0.5;
+                  packet.ray.org_x[k] = 0.0f;
+                  packet.ray.org_y[k] = 0.0f;
+                  packet.ray.org_z[k] = 0.0f;
+                  packet.ray.tnear[k] = 0.0f;
+                  packet.ray.dir_x[k] = static_cast<float>((pix_x - camera.cx) / camera.fx);
+                  packet.ray.dir_y[k] = static_cast<float>((pix_y - camera.cy) / camera.fy);
+                  packet.ray.dir_z[k] = 1.0f;
+                  packet.ray.time[k] = 0.0f;
+                  packet.ray.tfar[k] = inf;
+                  packet.ray.mask[k] = 0xFFFFFFFFu;
+                  packet.ray.id[k] = static_cast<unsigned>(k);
+                  packet.ray.flags[k] = 0;
+                  packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+                  packet.hit.primID[k] = RTC_INVALID_GEOMETRY_ID;
+                }
+                rtcIntersect16(valid, impl.scene, &context, &packet);
+                for (int k = 0; k < 16; ++k) {
+                  if (!valid[k]) continue;
+                  const int x = px + (k & 3);
+                  const int y = py + (k >> 2);
+                  if (packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) {
+                    visit(x, y, -1, 0.0f, 0.0f, inf, 0.0f);
+                  } else {
+                    const float ng_dot_dir = packet.hit.Ng_x[k] * packet.ray.dir_x[k] +
+                                             packet.hit.Ng_y[k] * packet.ray.dir_y[k] +
+                                             packet.hit.Ng_z[k] * packet.ray.dir_z[k];
+                    visit(x, y, static_cast<int>(packet.hit.primID[k]), packet.hit.u[k],
+                          packet.hit.v[k], packet.ray.tfar[k], ng_dot_dir);
+                  }
+                }
+              }
+            }
+          }
+        }
+      });
+}
+
+}  // namespace detail
+}  // namespace pbve
