@@ -286,7 +286,10 @@ Mesh refine_mesh(const Mesh& mesh, double max_edge_length) {
     new_tri.clear();
     new_part.clear();
     new_interior.clear();
-    new_tri.reserve(tri.size() * 2);
+    // At most four sub-triangles per triangle.
+    new_tri.reserve(tri.size() * 4);
+    new_part.reserve(nf * 4);
+    new_interior.reserve(nf * 4);
     for (std::size_t f = 0; f < nf; ++f) {
       const int v[3] = {tri[3 * f], tri[3 * f + 1], tri[3 * f + 2]};
       int m[3];  // m[k]: midpoint of edge v[k] -> v[k+1], or -1

@@ -16,6 +16,11 @@
 #include <unordered_map>
 #include <vector>
 
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include "pbve/core/error.hpp"
 #include "pbve/core/mesh.hpp"
 
@@ -30,28 +35,56 @@ static_assert(std::endian::native == std::endian::little,
 // ---------------------------------------------------------------------------------------
 // Shared helpers
 
-std::string read_whole_file(const fs::path& path) {
-  std::FILE* f = std::fopen(path.c_str(), "rb");
-  if (!f) {
-    const int err = errno;
-    throw InputError("cannot open mesh file: " + std::generic_category().message(err), path);
+/// The whole content of a file, memory-mapped when possible (no copy, no zero-fill).
+class FileData {
+ public:
+  explicit FileData(const fs::path& path) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) {
+      const int err = errno;
+      throw InputError("cannot open mesh file: " + std::generic_category().message(err), path);
+    }
+    struct stat st {};
+    if (::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) {
+      void* p = ::mmap(nullptr, static_cast<std::size_t>(st.st_size), PROT_READ,
+                       MAP_PRIVATE | MAP_POPULATE, fd, 0);
+      if (p != MAP_FAILED) {
+        m_map = p;
+        m_size = static_cast<std::size_t>(st.st_size);
+        ::close(fd);
+        return;
+      }
+    }
+    // Not mappable (empty file, pipe, ...): read it.
+    char chunk[1 << 16];
+    for (;;) {
+      const ssize_t n = ::read(fd, chunk, sizeof chunk);
+      if (n < 0 && errno == EINTR) continue;
+      if (n < 0) {
+        ::close(fd);
+        throw InputError("cannot read mesh file", path);
+      }
+      if (n == 0) break;
+      m_copy.append(chunk, static_cast<std::size_t>(n));
+    }
+    ::close(fd);
   }
-  std::string data;
-  if (std::fseek(f, 0, SEEK_END) == 0) {
-    const long size = std::ftell(f);
-    if (size > 0) data.resize(static_cast<std::size_t>(size));
-    std::fseek(f, 0, SEEK_SET);
+  ~FileData() {
+    if (m_map) ::munmap(m_map, m_size);
   }
-  std::size_t got = data.empty() ? 0 : std::fread(data.data(), 1, data.size(), f);
-  data.resize(got);
-  // Streams whose size is unknown up front (pipes): read the rest in chunks.
-  char chunk[1 << 16];
-  for (std::size_t n; (n = std::fread(chunk, 1, sizeof chunk, f)) > 0;) data.append(chunk, n);
-  const bool failed = std::ferror(f) != 0;
-  std::fclose(f);
-  if (failed) throw InputError("cannot read mesh file", path);
-  return data;
-}
+  FileData(const FileData&) = delete;
+  FileData& operator=(const FileData&) = delete;
+
+  std::string_view view() const {
+    return m_map ? std::string_view(static_cast<const char*>(m_map), m_size)
+                 : std::string_view(m_copy);
+  }
+
+ private:
+  void* m_map = nullptr;
+  std::size_t m_size = 0;
+  std::string m_copy;
+};
 
 /// "name.partial.ext" beside `path`, the name used while a file is being written.
 fs::path staging_path(const fs::path& path) {
@@ -129,34 +162,60 @@ bool parse_int(std::string_view token, Int& value) {
   return ec == std::errc() && ptr == e && b != e;
 }
 
-/// Triangles accumulated by a reader, with their part and interior flag.
-struct MeshBuilder {
-  std::vector<double> xyz;
-  std::vector<int> tri;
-  std::vector<int> part;
-  std::vector<std::uint8_t> interior;
+/// Vertices and triangles accumulated by a reader, written straight into Eigen storage
+/// (grown geometrically when the expected counts are exceeded).
+class MeshBuilder {
+ public:
+  /// Allocates storage for the expected counts; call before adding anything.
+  void reserve(std::size_t vertices, std::size_t triangles) {
+    m_mesh.vertices.resize(static_cast<Eigen::Index>(std::max<std::size_t>(vertices, 16)), 3);
+    reserve_triangles(triangles);
+  }
+  void reserve_triangles(std::size_t triangles) {
+    m_mesh.triangles.resize(static_cast<Eigen::Index>(std::max<std::size_t>(triangles, 16)), 3);
+    m_mesh.triangle_part.reserve(triangles);
+    m_mesh.interior.reserve(triangles);
+  }
+  int num_vertices() const { return m_nv; }
+  std::vector<int>& parts() { return m_mesh.triangle_part; }
+
+  /// Pointer to the 3 coordinates of a new vertex.
+  double* add_vertex() {
+    if (m_nv == m_mesh.vertices.rows())
+      m_mesh.vertices.conservativeResize(std::max<Eigen::Index>(16, 2 * m_nv), 3);
+    return m_mesh.vertices.data() + 3 * static_cast<std::size_t>(m_nv++);
+  }
+  void set_vertex_count(int n) {
+    m_mesh.vertices.resize(n, 3);
+    m_nv = n;
+  }
+  double* vertex(int i) { return m_mesh.vertices.data() + 3 * static_cast<std::size_t>(i); }
 
   void add_triangle(int a, int b, int c, int p, std::uint8_t in) {
-    tri.push_back(a);
-    tri.push_back(b);
-    tri.push_back(c);
-    part.push_back(p);
-    interior.push_back(in);
+    if (m_nf == m_mesh.triangles.rows())
+      m_mesh.triangles.conservativeResize(std::max<Eigen::Index>(16, 2 * m_nf), 3);
+    int* t = m_mesh.triangles.data() + 3 * static_cast<std::size_t>(m_nf++);
+    t[0] = a;
+    t[1] = b;
+    t[2] = c;
+    m_mesh.triangle_part.push_back(p);
+    m_mesh.interior.push_back(in);
   }
 
   Mesh finish(std::vector<std::string> part_names, const fs::path& path) && {
-    if (xyz.empty()) throw InputError("empty mesh: the file has no vertices", path);
-    if (tri.empty()) throw InputError("empty mesh: the file has no faces", path);
-    Mesh m;
-    const Eigen::Index nv = static_cast<Eigen::Index>(xyz.size() / 3);
-    const Eigen::Index nf = static_cast<Eigen::Index>(tri.size() / 3);
-    m.vertices = Eigen::Map<const Vertices>(xyz.data(), nv, 3);
-    m.triangles = Eigen::Map<const Triangles>(tri.data(), nf, 3);
-    m.triangle_part = std::move(part);
-    m.interior = std::move(interior);
-    m.part_names = std::move(part_names);
-    return m;
+    if (m_nv == 0) throw InputError("empty mesh: the file has no vertices", path);
+    if (m_nf == 0) throw InputError("empty mesh: the file has no faces", path);
+    // Shrinking a row-major matrix keeps its prefix in place (a realloc, no copy).
+    if (m_mesh.vertices.rows() != m_nv) m_mesh.vertices.conservativeResize(m_nv, 3);
+    if (m_mesh.triangles.rows() != m_nf) m_mesh.triangles.conservativeResize(m_nf, 3);
+    m_mesh.part_names = std::move(part_names);
+    return std::move(m_mesh);
   }
+
+ private:
+  Mesh m_mesh;
+  int m_nv = 0;
+  int m_nf = 0;
 };
 
 // ---------------------------------------------------------------------------------------
@@ -170,10 +229,7 @@ class ObjReader {
     const char* p = m_text.data();
     const char* const end = p + m_text.size();
     // Rough capacity guesses from the file size avoid most reallocations.
-    m_mesh.xyz.reserve(m_text.size() / 40 * 3);
-    m_mesh.tri.reserve(m_text.size() / 40 * 3);
-    m_mesh.part.reserve(m_text.size() / 40);
-    m_mesh.interior.reserve(m_text.size() / 40);
+    reserve_from_line_counts();
     while (p < end) {
       ++m_line;
       const char* eol = static_cast<const char*>(std::memchr(p, '\n', end - p));
@@ -188,6 +244,24 @@ class ObjReader {
  private:
   [[noreturn]] void fail(const std::string& message) const {
     throw InputError(message, m_path, m_line);
+  }
+
+  /// Counts `v` and `f` lines in a quick first pass so storage is allocated once.
+  void reserve_from_line_counts() {
+    std::size_t nv = 0, nf = 0;
+    const char* p = m_text.data();
+    const char* const end = p + m_text.size();
+    while (p < end) {
+      while (p < end && is_blank(*p)) ++p;
+      if (end - p >= 2 && is_blank(p[1])) {
+        nv += p[0] == 'v';
+        nf += p[0] == 'f';
+      }
+      const char* eol = static_cast<const char*>(std::memchr(p, '\n', end - p));
+      if (!eol) break;
+      p = eol + 1;
+    }
+    m_mesh.reserve(nv, nf);
   }
 
   static const char* skip_blanks(const char* p, const char* end) {
@@ -227,11 +301,11 @@ class ObjReader {
       if (!parse_double(tok, c[k])) fail("malformed number " + quote_token(tok));
       if (!std::isfinite(c[k]))
         fail("non-finite coordinate " + quote_token(tok) + " in vertex " +
-             std::to_string(m_mesh.xyz.size() / 3 + 1));
+             std::to_string(m_mesh.num_vertices() + 1));
       p = te;
     }
     // An optional w and vertex colours may follow; they do not matter here.
-    m_mesh.xyz.insert(m_mesh.xyz.end(), c, c + 3);
+    std::copy(c, c + 3, m_mesh.add_vertex());
   }
 
   /// Parses one `v`, `v/vt`, `v//vn` or `v/vt/vn` reference and returns the 0-based vertex.
@@ -250,7 +324,7 @@ class ObjReader {
       if (!(*q == '/' || *q == '-' || *q == '+' || (*q >= '0' && *q <= '9')))
         fail("malformed vertex reference " + quote_token(std::string_view(p, te - p)));
     p = te;
-    const long long defined = static_cast<long long>(m_mesh.xyz.size() / 3);
+    const long long defined = static_cast<long long>(m_mesh.num_vertices());
     if (idx == 0) fail("vertex index 0 is invalid (OBJ indices start at 1)");
     if (idx < 0) {
       if (-idx > defined)
@@ -287,7 +361,7 @@ class ObjReader {
   }
 
   void check_forward_references() {
-    const long long total = static_cast<long long>(m_mesh.xyz.size() / 3);
+    const long long total = static_cast<long long>(m_mesh.num_vertices());
     for (const auto& [line, idx] : m_forward)
       if (idx > total)
         throw InputError("vertex index " + std::to_string(idx) + " out of range: the file has " +
@@ -310,7 +384,7 @@ class ObjReader {
   /// Part names in order of declaration, without parts that received no face; remaps ids.
   std::vector<std::string> used_parts() {
     std::vector<int> used(m_part_names.size(), 0);
-    for (int p : m_mesh.part) used[p] = 1;
+    for (int p : m_mesh.parts()) used[p] = 1;
     std::vector<int> remap(m_part_names.size(), -1);
     std::vector<std::string> names;
     for (std::size_t i = 0; i < m_part_names.size(); ++i)
@@ -318,7 +392,7 @@ class ObjReader {
         remap[i] = static_cast<int>(names.size());
         names.push_back(m_part_names[i]);
       }
-    for (int& p : m_mesh.part) p = remap[p];
+    for (int& p : m_mesh.parts()) p = remap[p];
     return names;
   }
 
@@ -405,7 +479,7 @@ class PlyReader {
       names.push_back("default");
     } else {
       int max_part = 0;
-      for (int p : m_mesh.part) max_part = std::max(max_part, p);
+      for (int p : m_mesh.parts()) max_part = std::max(max_part, p);
       for (int k = 0; k <= max_part; ++k) {
         auto it = m_comment_parts.find(k);
         names.push_back(it != m_comment_parts.end() ? it->second : "part" + std::to_string(k));
@@ -556,7 +630,9 @@ class PlyReader {
 
     [[noreturn]] void truncated(const PlyReader& r, const std::string& element) const {
       if (Binary) r.fail("truncated binary data: file ends inside " + element, 0, element);
-      r.fail("unexpected end of file inside " + element, line, element);
+      // A final newline does not start a new line of content.
+      const int last = (p > r.m_data.data() && p[-1] == '\n') ? line - 1 : line;
+      r.fail("unexpected end of file inside " + element, last, element);
     }
 
     /// Reads one value of type `t` as a double (exact for every PLY type).
@@ -658,9 +734,9 @@ class PlyReader {
                      : p.name == "y" ? 1
                      : p.name == "z" ? 2
                                      : -1);
-    m_mesh.xyz.resize(static_cast<std::size_t>(e.count) * 3);
+    m_mesh.set_vertex_count(static_cast<int>(e.count));
     for (long long i = 0; i < e.count; ++i) {
-      double* xyz = &m_mesh.xyz[static_cast<std::size_t>(i) * 3];
+      double* xyz = m_mesh.vertex(static_cast<int>(i));
       for (std::size_t k = 0; k < e.properties.size(); ++k) {
         const PlyProperty& p = e.properties[k];
         if (p.is_list) {
@@ -679,9 +755,7 @@ class PlyReader {
 
   template <class Src>
   void read_faces(const PlyElement& e, Src& src) {
-    m_mesh.tri.reserve(static_cast<std::size_t>(e.count) * 3);
-    m_mesh.part.reserve(static_cast<std::size_t>(e.count));
-    m_mesh.interior.reserve(static_cast<std::size_t>(e.count));
+    m_mesh.reserve_triangles(static_cast<std::size_t>(e.count));
     std::vector<int> face;
     for (const auto& p : e.properties) m_has_part = m_has_part || (!p.is_list && p.name == "part");
     for (long long i = 0; i < e.count; ++i) {
@@ -794,13 +868,13 @@ std::string part_name_of(const Mesh& mesh, int part) {
 }  // namespace
 
 Mesh load_obj(const std::filesystem::path& path) {
-  const std::string text = read_whole_file(path);
-  return ObjReader(path, text).read();
+  const FileData file(path);
+  return ObjReader(path, file.view()).read();
 }
 
 Mesh load_ply(const std::filesystem::path& path) {
-  const std::string data = read_whole_file(path);
-  return PlyReader(path, data).read();
+  const FileData file(path);
+  return PlyReader(path, file.view()).read();
 }
 
 Mesh load_mesh(const std::filesystem::path& path) {
@@ -837,9 +911,8 @@ void save_obj(const Mesh& mesh, const std::filesystem::path& path) {
   bool material_interior = false;
   for (int f = 0; f < mesh.num_triangles(); ++f) {
     const int p = mesh.triangle_part.empty() ? 0 : mesh.triangle_part[f];
-    const std::string name = p != part ? part_name_of(mesh, p) : std::string();
     if (p != part) {
-      out += "g " + name + "\n";
+      out += "g " + part_name_of(mesh, p) + "\n";
       part = p;
     }
     // Interior faces outside "interior*" parts are marked with a material.

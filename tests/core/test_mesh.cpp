@@ -241,6 +241,10 @@ TEST(MeshObjBadInput, EmptyFile) {
   const InputError e = expect_input_error([&] { load_obj(path); });
   EXPECT_EQ(e.file(), path);
   EXPECT_TRUE(contains(e.message(), "empty mesh")) << e.what();
+  const auto zero_bytes = write_text(dir / "zero.obj", "");
+  const InputError e0 = expect_input_error([&] { load_mesh(zero_bytes); });
+  EXPECT_EQ(e0.file(), zero_bytes);
+  EXPECT_TRUE(contains(e0.message(), "empty mesh")) << e0.what();
   const auto no_faces = write_text(dir / "points.obj", "v 0 0 0\nv 1 0 0\n");
   const InputError e2 = expect_input_error([&] { load_obj(no_faces); });
   EXPECT_TRUE(contains(e2.message(), "no faces")) << e2.what();
