@@ -1,0 +1,657 @@
+#include "pbve/mass_spring/mass_spring.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+#include <string>
+
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseLU>
+
+#include "model.hpp"
+
+namespace pbve::mass_spring {
+
+namespace {
+
+using detail::Model;
+using detail::Spring;
+using Eigen::Matrix3d;
+using Eigen::Vector3d;
+using Eigen::VectorXd;
+
+bool same_values(const VectorXd& a, const VectorXd& b) {
+  return a.size() == b.size() &&
+         (a.size() == 0 ||
+          std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.size())) == 0);
+}
+
+bool same_input(const StepInput& a, const StepInput& b) {
+  return std::memcmp(&a.dt, &b.dt, sizeof(double)) == 0 && same_values(a.control, b.control) &&
+         a.anchor_targets.rows() == b.anchor_targets.rows() &&
+         (a.anchor_targets.size() == 0 ||
+          std::memcmp(a.anchor_targets.data(), b.anchor_targets.data(),
+                      sizeof(double) * static_cast<size_t>(a.anchor_targets.size())) == 0);
+}
+
+// Quantities frozen at the start of a substep (lagged): spring directions for the stiffness
+// damping, friction coefficients, and the external force (gravity + control).
+struct Lag {
+  std::vector<Vector3d> dir;    // per spring, unit direction at x (zero if degenerate)
+  std::vector<double> inv_len;  // per spring, 1 / |x_b - x_a| (0 if degenerate)
+  VectorXd fric;                // per node and plane: friction coefficient c, kg/s
+  VectorXd fext;                // 3N, newtons
+};
+
+}  // namespace
+
+struct MassSpringSimulator::Impl {
+  std::shared_ptr<const Model> model;
+  VectorXd x, v;  // 3N positions (m) and velocities (m/s)
+  Vertices phys;  // #V by 3, last step's averaged physical forces
+  StepStats stats;
+
+  Eigen::SparseMatrix<double> J;
+  // Eigen's solvers are not copyable: a copy starts without a factorization and analyzes the
+  // (shared) pattern again on first use.
+  struct Solver {
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
+    bool analyzed = false;
+    Solver() = default;
+    Solver(const Solver&) {}
+    Solver& operator=(const Solver&) {
+      analyzed = false;
+      return *this;
+    }
+  } solver;
+
+  // Trajectory of the last step (for step_vjp).
+  struct Tape {
+    bool valid = false;
+    VectorXd before;  // [x; v] at the start
+    StepInput in;
+    std::vector<VectorXd> xs, vs;  // substeps + 1 entries
+  } tape;
+
+  const Params& P() const { return model->params; }
+  int N() const { return model->num_nodes; }
+
+  // ----- per-substep physics -------------------------------------------------------------
+
+  void make_lag(const VectorXd& xn, const VectorXd& vn, const VectorXd& u, Lag& lag) const {
+    const Model& m = *model;
+    lag.dir.resize(m.springs.size());
+    lag.inv_len.resize(m.springs.size());
+    for (size_t s = 0; s < m.springs.size(); ++s) {
+      const Vector3d d = xn.segment<3>(3 * m.springs[s].b) - xn.segment<3>(3 * m.springs[s].a);
+      const double l = d.norm();
+      lag.dir[s] = l > 0.0 ? Vector3d(d / l) : Vector3d::Zero();
+      lag.inv_len[s] = l > 0.0 ? 1.0 / l : 0.0;
+    }
+    const int np = static_cast<int>(P().planes.size());
+    lag.fric = VectorXd::Zero(static_cast<Eigen::Index>(N()) * np);
+    for (int p = 0; p < np; ++p) {
+      const Plane& pl = P().planes[static_cast<size_t>(p)];
+      const Vector3d n = pl.normal.normalized();
+      for (int i = 0; i < N(); ++i) {
+        const double phi = (xn.segment<3>(3 * i) - pl.point).dot(n);
+        if (phi >= 0.0 || pl.friction == 0.0) continue;
+        const Vector3d vt = vn.segment<3>(3 * i) - n * n.dot(vn.segment<3>(3 * i));
+        const double normal_force = -P().contact_stiffness * phi;
+        lag.fric[static_cast<Eigen::Index>(i) * np + p] =
+            pl.friction * normal_force / std::max(vt.norm(), P().friction_velocity);
+      }
+    }
+    lag.fext.resize(3 * N());
+    for (int i = 0; i < N(); ++i) lag.fext.segment<3>(3 * i) = m.mass[i] * P().gravity;
+    if (u.size() > 0)
+      for (int i = 0; i < m.num_surface; ++i) lag.fext.segment<3>(3 * i) += u.segment<3>(3 * i);
+  }
+
+  // Incremental potential whose gradient is the backward Euler residual (J-units: kg m).
+  double potential(const VectorXd& y, const VectorXd& xn, const VectorXd& vn, const Lag& lag,
+                   double h) const {
+    const Model& m = *model;
+    const double a = P().damping_alpha, b = P().damping_beta;
+    double e = 0.0;
+    for (int i = 0; i < N(); ++i) {
+      const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+      const Vector3d wp = w - h * vn.segment<3>(3 * i);
+      e += 0.5 * m.mass[i] * (wp.squaredNorm() + h * a * w.squaredNorm()) -
+           h * h * lag.fext.segment<3>(3 * i).dot(y.segment<3>(3 * i));
+    }
+    for (size_t s = 0; s < m.springs.size(); ++s) {
+      const Spring& sp = m.springs[s];
+      const double l = (y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a)).norm();
+      const double dw = lag.dir[s].dot((y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
+                                       (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a)));
+      e += 0.5 * h * h * sp.k * (l - sp.rest) * (l - sp.rest) + 0.5 * h * b * sp.k * dw * dw;
+    }
+    const int np = static_cast<int>(P().planes.size());
+    for (int p = 0; p < np; ++p) {
+      const Plane& pl = P().planes[static_cast<size_t>(p)];
+      const Vector3d n = pl.normal.normalized();
+      for (int i = 0; i < N(); ++i) {
+        const double phi = (y.segment<3>(3 * i) - pl.point).dot(n);
+        if (phi < 0.0) e += 0.5 * h * h * P().contact_stiffness * phi * phi;
+        const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+        if (c > 0.0) {
+          const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+          e += 0.5 * h * c * (w - n * n.dot(w)).squaredNorm();
+        }
+      }
+    }
+    return e;
+  }
+
+  // Residual r(y) on all nodes (3N; only free rows are equations).
+  void residual(const VectorXd& y, const VectorXd& xn, const VectorXd& vn, const Lag& lag, double h,
+                VectorXd& r) const {
+    const Model& m = *model;
+    const double a = P().damping_alpha, b = P().damping_beta;
+    r.resize(3 * N());
+    for (int i = 0; i < N(); ++i) {
+      const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+      r.segment<3>(3 * i) = m.mass[i] * ((1.0 + h * a) * w - h * vn.segment<3>(3 * i)) -
+                            h * h * lag.fext.segment<3>(3 * i);
+    }
+    for (size_t s = 0; s < m.springs.size(); ++s) {
+      const Spring& sp = m.springs[s];
+      const Vector3d d = y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a);
+      const double l = d.norm();
+      Vector3d g = Vector3d::Zero();
+      if (l > 0.0) g = (h * h * sp.k * (l - sp.rest) / l) * d;
+      const double dw = lag.dir[s].dot((y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
+                                       (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a)));
+      g += (h * b * sp.k * dw) * lag.dir[s];
+      r.segment<3>(3 * sp.b) += g;
+      r.segment<3>(3 * sp.a) -= g;
+    }
+    const int np = static_cast<int>(P().planes.size());
+    for (int p = 0; p < np; ++p) {
+      const Plane& pl = P().planes[static_cast<size_t>(p)];
+      const Vector3d n = pl.normal.normalized();
+      for (int i = 0; i < N(); ++i) {
+        const double phi = (y.segment<3>(3 * i) - pl.point).dot(n);
+        if (phi < 0.0) r.segment<3>(3 * i) += (h * h * P().contact_stiffness * phi) * n;
+        const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+        if (c > 0.0) {
+          const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+          r.segment<3>(3 * i) += (h * c) * (w - n * n.dot(w));
+        }
+      }
+    }
+  }
+
+  // Spring block of the Jacobian: h^2 * Hessian (projected to PSD unless exact) + h*beta*k*uu^T.
+  static Matrix3d spring_block(const Spring& sp, const Vector3d& d, const Vector3d& lag_dir,
+                               double h, double beta, bool exact) {
+    const double l = d.norm();
+    Matrix3d H = Matrix3d::Zero();
+    if (l > 0.0) {
+      const Vector3d u = d / l;
+      double t = 1.0 - sp.rest / l;
+      if (!exact) t = std::max(t, 0.0);
+      H = sp.k * ((1.0 - t) * u * u.transpose() + t * Matrix3d::Identity());
+    }
+    return h * h * H + (h * beta * sp.k) * lag_dir * lag_dir.transpose();
+  }
+
+  Matrix3d node_block(int i, const VectorXd& y, const Lag& lag, double h) const {
+    Matrix3d B = (model->mass[i] * (1.0 + h * P().damping_alpha)) * Matrix3d::Identity();
+    const int np = static_cast<int>(P().planes.size());
+    for (int p = 0; p < np; ++p) {
+      const Plane& pl = P().planes[static_cast<size_t>(p)];
+      const Vector3d n = pl.normal.normalized();
+      const double phi = (y.segment<3>(3 * i) - pl.point).dot(n);
+      if (phi < 0.0) B += (h * h * P().contact_stiffness) * n * n.transpose();
+      const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+      if (c > 0.0) B += (h * c) * (Matrix3d::Identity() - n * n.transpose());
+    }
+    return B;
+  }
+
+  // Fills J (free-free) at y.
+  void assemble(const VectorXd& y, const Lag& lag, double h, bool exact) {
+    const Model& m = *model;
+    if (J.size() == 0) J = m.pattern;
+    double* val = J.valuePtr();
+    std::fill(val, val + J.nonZeros(), 0.0);
+    auto add = [val](const std::array<int, 3>& off, const Matrix3d& B, double sign) {
+      for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 3; ++i) val[off[static_cast<size_t>(j)] + i] += sign * B(i, j);
+    };
+    for (size_t f = 0; f < m.free_nodes.size(); ++f)
+      add(m.diag_offset[f], node_block(m.free_nodes[f], y, lag, h), 1.0);
+    for (size_t s = 0; s < m.springs.size(); ++s) {
+      const Spring& sp = m.springs[s];
+      const int fa = m.free_index[static_cast<size_t>(sp.a)];
+      const int fb = m.free_index[static_cast<size_t>(sp.b)];
+      if (fa < 0 && fb < 0) continue;
+      const Matrix3d B = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
+                                      lag.dir[s], h, P().damping_beta, exact);
+      if (fa >= 0) add(m.diag_offset[static_cast<size_t>(fa)], B, 1.0);
+      if (fb >= 0) add(m.diag_offset[static_cast<size_t>(fb)], B, 1.0);
+      if (fa >= 0 && fb >= 0) {
+        const auto& o = m.spring_offset[s];
+        add({o[0], o[1], o[2]}, B, -1.0);
+        add({o[3], o[4], o[5]}, B, -1.0);
+      }
+    }
+  }
+
+  bool factorize() {
+    if (!solver.analyzed) {
+      solver.ldlt.analyzePattern(J);
+      solver.analyzed = true;
+    }
+    solver.ldlt.factorize(J);
+    return solver.ldlt.info() == Eigen::Success;
+  }
+
+  // out = J_full(y) * lam on all nodes, with the exact Hessian (lam: 3N).
+  void apply_exact(const VectorXd& y, const Lag& lag, double h, const VectorXd& lam,
+                   VectorXd& out) const {
+    const Model& m = *model;
+    out.resize(3 * N());
+    for (int i = 0; i < N(); ++i)
+      out.segment<3>(3 * i) = node_block(i, y, lag, h) * lam.segment<3>(3 * i);
+    for (size_t s = 0; s < m.springs.size(); ++s) {
+      const Spring& sp = m.springs[s];
+      const Matrix3d B = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
+                                      lag.dir[s], h, P().damping_beta, true);
+      const Vector3d q = B * (lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a));
+      out.segment<3>(3 * sp.b) += q;
+      out.segment<3>(3 * sp.a) -= q;
+    }
+  }
+
+  VectorXd gather_free(const VectorXd& full) const {
+    VectorXd f(3 * static_cast<Eigen::Index>(model->free_nodes.size()));
+    for (size_t k = 0; k < model->free_nodes.size(); ++k)
+      f.segment<3>(3 * static_cast<Eigen::Index>(k)) = full.segment<3>(3 * model->free_nodes[k]);
+    return f;
+  }
+
+  // One backward Euler substep from (xn, vn) with anchors moved to ya (3 * #anchors); writes
+  // y. Returns Newton iterations (negative when not converged).
+  int substep(const VectorXd& xn, const VectorXd& vn, const VectorXd& ya, const Lag& lag, double h,
+              VectorXd& y) {
+    const Model& m = *model;
+    y = xn + h * vn;
+    for (size_t k = 0; k < m.anchors.size(); ++k)
+      y.segment<3>(3 * m.anchors[k]) = ya.segment<3>(3 * static_cast<Eigen::Index>(k));
+    if (m.free_nodes.empty()) return 0;
+    const double tol = P().newton_tolerance * m.char_length;
+    VectorXd r, dy_free, trial;
+    for (int it = 1; it <= P().newton_iterations; ++it) {
+      residual(y, xn, vn, lag, h, r);
+      const VectorXd rf = gather_free(r);
+      assemble(y, lag, h, false);
+      ++stats.factorizations;
+      if (!factorize()) return -it;
+      dy_free = -solver.ldlt.solve(rf);
+      const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
+      if (!std::isfinite(step_inf)) return -it;
+      double t = 1.0;
+      if (step_inf > 1e-3 * m.char_length) {
+        // Backtracking (Armijo) on the incremental potential; the projected Hessian makes
+        // dy a descent direction.
+        const double e0 = potential(y, xn, vn, lag, h);
+        const double slope = rf.dot(dy_free);
+        for (int ls = 0; ls < 12; ++ls) {
+          trial = y;
+          for (size_t k = 0; k < m.free_nodes.size(); ++k)
+            trial.segment<3>(3 * m.free_nodes[k]) +=
+                t * dy_free.segment<3>(3 * static_cast<Eigen::Index>(k));
+          if (potential(trial, xn, vn, lag, h) <= e0 + 1e-4 * t * slope) break;
+          t *= 0.5;
+        }
+      }
+      for (size_t k = 0; k < m.free_nodes.size(); ++k)
+        y.segment<3>(3 * m.free_nodes[k]) +=
+            t * dy_free.segment<3>(3 * static_cast<Eigen::Index>(k));
+      if (t == 1.0 && step_inf <= tol) return it;
+    }
+    return -P().newton_iterations;
+  }
+
+  // ----- step ----------------------------------------------------------------------------
+
+  void validate(const StepInput& in) const {
+    if (!(in.dt > 0.0) || !std::isfinite(in.dt))
+      throw std::invalid_argument("mass_spring: step dt must be positive and finite (got " +
+                                  std::to_string(in.dt) + ")");
+    const Eigen::Index nc = 3 * static_cast<Eigen::Index>(model->num_surface);
+    if (in.control.size() != 0 && in.control.size() != nc)
+      throw std::invalid_argument("mass_spring: control has " + std::to_string(in.control.size()) +
+                                  " entries, expected " + std::to_string(nc) +
+                                  " (3 per vertex) or 0");
+    if (in.control.size() != 0 && !in.control.allFinite())
+      throw std::invalid_argument("mass_spring: control contains non-finite values");
+    const auto na = static_cast<Eigen::Index>(model->anchors.size());
+    if (in.anchor_targets.rows() != 0 && in.anchor_targets.rows() != na)
+      throw std::invalid_argument("mass_spring: anchor_targets has " +
+                                  std::to_string(in.anchor_targets.rows()) + " rows, expected " +
+                                  std::to_string(na) + " (one per anchor) or 0");
+    if (in.anchor_targets.rows() != 0 && !in.anchor_targets.allFinite())
+      throw std::invalid_argument("mass_spring: anchor_targets contain non-finite values");
+  }
+
+  // Prescribed anchor positions at substep s (1..S).
+  VectorXd anchor_at(const VectorXd& a0, const StepInput& in, int s, int S) const {
+    if (in.anchor_targets.rows() == 0) return a0;
+    VectorXd target(a0.size());
+    for (Eigen::Index k = 0; k < in.anchor_targets.rows(); ++k)
+      target.segment<3>(3 * k) = in.anchor_targets.row(k).transpose();
+    if (s == S) return target;
+    const double t = static_cast<double>(s) / S;
+    return a0 + t * (target - a0);
+  }
+
+  void step(const StepInput& in) {
+    validate(in);
+    const Model& m = *model;
+    const int S = P().substeps;
+    const double h = in.dt / S;
+    VectorXd a0(3 * static_cast<Eigen::Index>(m.anchors.size()));
+    for (size_t k = 0; k < m.anchors.size(); ++k)
+      a0.segment<3>(3 * static_cast<Eigen::Index>(k)) = x.segment<3>(3 * m.anchors[k]);
+    tape.valid = false;
+    tape.before.resize(6 * N());
+    tape.before << x, v;
+    tape.in = in;
+    tape.xs.assign(1, x);
+    tape.vs.assign(1, v);
+    stats = StepStats{};
+    stats.substeps = S;
+    phys.setZero(m.num_surface, 3);
+    Lag lag;
+    VectorXd y;
+    for (int s = 1; s <= S; ++s) {
+      const VectorXd ya = anchor_at(a0, in, s, S);
+      make_lag(x, v, in.control, lag);
+      const int it = substep(x, v, ya, lag, h, y);
+      stats.newton_iterations += std::abs(it);
+      stats.max_newton_iterations = std::max(stats.max_newton_iterations, std::abs(it));
+      if (it < 0) stats.converged = false;
+      const VectorXd vnew = (y - x) / h;
+      // Physical force = m a - u (the converged residual is zero to the Newton tolerance).
+      for (int i = 0; i < m.num_surface; ++i) {
+        if (m.free_index[static_cast<size_t>(i)] < 0) continue;
+        Vector3d f = m.mass[i] * (vnew.segment<3>(3 * i) - v.segment<3>(3 * i)) / h;
+        if (in.control.size() > 0) f -= in.control.segment<3>(3 * i);
+        phys.row(i) += f.transpose() / S;
+      }
+      x = y;
+      v = vnew;
+      tape.xs.push_back(x);
+      tape.vs.push_back(v);
+    }
+    tape.valid = true;
+  }
+
+  // ----- adjoint -------------------------------------------------------------------------
+
+  StepVjp vjp(const StepInput& in, const VectorXd& g) {
+    const Model& m = *model;
+    const int S = P().substeps;
+    const double h = in.dt / S;
+    const int n3 = 3 * N();
+    const double alpha = P().damping_alpha, beta = P().damping_beta;
+    const int np = static_cast<int>(P().planes.size());
+    VectorXd gx = g.head(n3), gv = g.tail(n3);
+    VectorXd ga0 = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.anchors.size()));
+    VectorXd gu = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.num_surface));
+    const bool moving = in.anchor_targets.rows() != 0;
+    Lag lag;
+    VectorXd G, lam(n3), Jlam, gx_new(n3), gv_new(n3);
+    Eigen::SparseLU<Eigen::SparseMatrix<double>> lu;
+    for (int s = S - 1; s >= 0; --s) {
+      const VectorXd& xn = tape.xs[static_cast<size_t>(s)];
+      const VectorXd& vn = tape.vs[static_cast<size_t>(s)];
+      const VectorXd& y = tape.xs[static_cast<size_t>(s + 1)];
+      make_lag(xn, vn, in.control, lag);
+      G = gx + gv / h;
+      lam.setZero();
+      if (!m.free_nodes.empty()) {
+        assemble(y, lag, h, true);
+        const VectorXd Gf = gather_free(G);
+        VectorXd lf;
+        if (factorize()) {
+          lf = solver.ldlt.solve(Gf);
+        } else {
+          lu.compute(J);
+          if (lu.info() != Eigen::Success)
+            throw std::runtime_error("mass_spring: singular system in step_vjp");
+          lf = lu.solve(Gf);
+        }
+        for (size_t k = 0; k < m.free_nodes.size(); ++k)
+          lam.segment<3>(3 * m.free_nodes[k]) = lf.segment<3>(3 * static_cast<Eigen::Index>(k));
+      }
+      apply_exact(y, lag, h, lam, Jlam);
+      // Anchors: dL/dy_a, carried to the step's initial anchor positions.
+      const double w_a0 = moving ? 1.0 - static_cast<double>(s + 1) / S : 1.0;
+      for (size_t k = 0; k < m.anchors.size(); ++k) {
+        const Eigen::Index a = 3 * m.anchors[k];
+        ga0.segment<3>(3 * static_cast<Eigen::Index>(k)) +=
+            w_a0 * (G.segment<3>(a) - Jlam.segment<3>(a));
+      }
+      // Controls enter as -h^2 u in the residual.
+      for (int i = 0; i < m.num_surface; ++i) gu.segment<3>(3 * i) += h * h * lam.segment<3>(3 * i);
+      // gx_new = -gv/h - lam^T dr/dx ; gv_new = -lam^T dr/dv.
+      for (int i = 0; i < N(); ++i) {
+        const Vector3d li = lam.segment<3>(3 * i);
+        gx_new.segment<3>(3 * i) = -gv.segment<3>(3 * i) / h + (1.0 + h * alpha) * m.mass[i] * li;
+        gv_new.segment<3>(3 * i) = h * m.mass[i] * li;
+      }
+      for (size_t sidx = 0; sidx < m.springs.size(); ++sidx) {
+        const Spring& sp = m.springs[sidx];
+        const Vector3d& u = lag.dir[sidx];
+        const Vector3d L = lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a);
+        const Vector3d w = (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
+                           (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
+        // -lam^T d/dx [h beta K(x) (y - x)] = +h beta K lam - h beta d/dx(lam^T K(x) w)|_w.
+        const double uL = u.dot(L), uw = u.dot(w);
+        Vector3d q = (h * beta * sp.k * uL) * u;
+        const Vector3d PL = L - u * uL, Pw = w - u * uw;
+        q -= (h * beta * sp.k * lag.inv_len[sidx]) * (PL * uw + Pw * uL);
+        gx_new.segment<3>(3 * sp.b) += q;
+        gx_new.segment<3>(3 * sp.a) -= q;
+      }
+      for (int p = 0; p < np; ++p) {
+        const Plane& pl = P().planes[static_cast<size_t>(p)];
+        const Vector3d n = pl.normal.normalized();
+        for (int i = 0; i < N(); ++i) {
+          const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+          if (c <= 0.0) continue;
+          const Vector3d li = lam.segment<3>(3 * i);
+          const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+          const Vector3d Pl = li - n * n.dot(li);
+          const double lPw = Pl.dot(w);
+          // Through w = y - x: +h c P lam.
+          gx_new.segment<3>(3 * i) += (h * c) * Pl;
+          // Through c(x): c = mu kc (-phi(x)) / max(|v_t|, eps).
+          const Vector3d vi = vn.segment<3>(3 * i);
+          const Vector3d vt = vi - n * n.dot(vi);
+          const double vtn = vt.norm();
+          const double denom = std::max(vtn, P().friction_velocity);
+          const Vector3d dc_dx = -(pl.friction * P().contact_stiffness / denom) * n;
+          gx_new.segment<3>(3 * i) -= (h * lPw) * dc_dx;
+          if (vtn > P().friction_velocity) {
+            const Vector3d dc_dv = -(c / (vtn * vtn)) * vt;
+            gv_new.segment<3>(3 * i) -= (h * lPw) * dc_dv;
+          }
+        }
+      }
+      gx.swap(gx_new);
+      gv.swap(gv_new);
+      gx_new.resize(n3);
+      gv_new.resize(n3);
+    }
+    for (size_t k = 0; k < m.anchors.size(); ++k)
+      gx.segment<3>(3 * m.anchors[k]) += ga0.segment<3>(3 * static_cast<Eigen::Index>(k));
+    StepVjp out;
+    out.state.resize(6 * N());
+    out.state << gx, gv;
+    for (int a : m.anchors) gu.segment<3>(3 * a).setZero();
+    out.control = gu;
+    return out;
+  }
+};
+
+// ----- public API ------------------------------------------------------------------------
+
+MassSpringSimulator::MassSpringSimulator(const Mesh& mesh, const Vertices& positions,
+                                         std::vector<int> anchors, const Params& params)
+    : m_impl(std::make_unique<Impl>()) {
+  m_impl->model = std::make_shared<const detail::Model>(
+      detail::build_model(mesh, positions, std::move(anchors), params));
+  m_impl->x = m_impl->model->rest;
+  m_impl->v = VectorXd::Zero(m_impl->x.size());
+  m_impl->phys = Vertices::Zero(m_impl->model->num_surface, 3);
+}
+
+MassSpringSimulator::MassSpringSimulator(const Mesh& mesh, std::vector<int> anchors,
+                                         const Params& params)
+    : MassSpringSimulator(mesh, mesh.vertices, std::move(anchors), params) {}
+
+MassSpringSimulator::MassSpringSimulator(const MassSpringSimulator& other)
+    : m_impl(std::make_unique<Impl>(*other.m_impl)) {}
+
+MassSpringSimulator& MassSpringSimulator::operator=(const MassSpringSimulator& other) {
+  if (this != &other) m_impl = std::make_unique<Impl>(*other.m_impl);
+  return *this;
+}
+
+MassSpringSimulator::~MassSpringSimulator() = default;
+
+int MassSpringSimulator::num_vertices() const {
+  return m_impl->model->num_surface;
+}
+
+Vertices MassSpringSimulator::positions() const {
+  return Eigen::Map<const Vertices>(m_impl->x.data(), num_vertices(), 3);
+}
+
+Vertices MassSpringSimulator::velocities() const {
+  return Eigen::Map<const Vertices>(m_impl->v.data(), num_vertices(), 3);
+}
+
+ControlLayout MassSpringSimulator::control_layout() const {
+  ControlLayout l;
+  l.space = ControlSpace::vertex_force;
+  l.num_blocks = num_vertices();
+  l.block_mass = m_impl->model->mass.head(num_vertices());
+  l.vertex_block.resize(static_cast<size_t>(num_vertices()));
+  for (int i = 0; i < num_vertices(); ++i) l.vertex_block[static_cast<size_t>(i)] = i;
+  return l;
+}
+
+std::vector<int> MassSpringSimulator::anchors() const {
+  return m_impl->model->anchors;
+}
+
+void MassSpringSimulator::step(const StepInput& in) {
+  m_impl->step(in);
+}
+
+Vertices MassSpringSimulator::physical_forces() const {
+  return m_impl->phys;
+}
+
+SimState MassSpringSimulator::save() const {
+  SimState s;
+  s.values.resize(static_cast<size_t>(m_impl->x.size() + m_impl->v.size()));
+  std::copy(m_impl->x.begin(), m_impl->x.end(), s.values.begin());
+  std::copy(m_impl->v.begin(), m_impl->v.end(), s.values.begin() + m_impl->x.size());
+  return s;
+}
+
+void MassSpringSimulator::restore(const SimState& state) {
+  const auto n3 = static_cast<size_t>(m_impl->x.size());
+  if (state.values.size() != 2 * n3)
+    throw std::invalid_argument("mass_spring: restore() got a state of " +
+                                std::to_string(state.values.size()) + " values, expected " +
+                                std::to_string(2 * n3));
+  std::copy(state.values.begin(), state.values.begin() + static_cast<std::ptrdiff_t>(n3),
+            m_impl->x.begin());
+  std::copy(state.values.begin() + static_cast<std::ptrdiff_t>(n3), state.values.end(),
+            m_impl->v.begin());
+}
+
+std::unique_ptr<Simulator> MassSpringSimulator::clone() const {
+  return std::make_unique<MassSpringSimulator>(*this);
+}
+
+int MassSpringSimulator::state_dim() const {
+  return 6 * m_impl->model->num_nodes;
+}
+
+Eigen::VectorXd MassSpringSimulator::position_cotangent(const Vertices& d_positions) const {
+  if (d_positions.rows() != num_vertices() || d_positions.cols() != 3)
+    throw std::invalid_argument("mass_spring: position_cotangent expects " +
+                                std::to_string(num_vertices()) + " by 3, got " +
+                                std::to_string(d_positions.rows()) + " by " +
+                                std::to_string(d_positions.cols()));
+  VectorXd g = VectorXd::Zero(state_dim());
+  for (int i = 0; i < num_vertices(); ++i) g.segment<3>(3 * i) = d_positions.row(i).transpose();
+  return g;
+}
+
+StepVjp MassSpringSimulator::step_vjp(const SimState& before, const StepInput& in,
+                                      const Eigen::VectorXd& d_state_after) {
+  m_impl->validate(in);
+  if (d_state_after.size() != state_dim())
+    throw std::invalid_argument("mass_spring: step_vjp d_state_after has " +
+                                std::to_string(d_state_after.size()) + " entries, expected " +
+                                std::to_string(state_dim()));
+  if (before.values.size() != static_cast<size_t>(state_dim()))
+    throw std::invalid_argument("mass_spring: step_vjp state has " +
+                                std::to_string(before.values.size()) + " values, expected " +
+                                std::to_string(state_dim()));
+  auto& tape = m_impl->tape;
+  const bool reuse = tape.valid &&
+                     std::memcmp(tape.before.data(), before.values.data(),
+                                 sizeof(double) * before.values.size()) == 0 &&
+                     same_input(tape.in, in);
+  if (!reuse) {
+    restore(before);
+    m_impl->step(in);
+  }
+  return m_impl->vjp(in, d_state_after);
+}
+
+int MassSpringSimulator::num_nodes() const {
+  return m_impl->model->num_nodes;
+}
+
+Vertices MassSpringSimulator::node_positions() const {
+  return Eigen::Map<const Vertices>(m_impl->x.data(), num_nodes(), 3);
+}
+
+Eigen::VectorXd MassSpringSimulator::node_masses() const {
+  return m_impl->model->mass;
+}
+
+int MassSpringSimulator::num_springs() const {
+  return static_cast<int>(m_impl->model->springs.size());
+}
+
+const Params& MassSpringSimulator::params() const {
+  return m_impl->model->params;
+}
+
+const StepStats& MassSpringSimulator::last_stats() const {
+  return m_impl->stats;
+}
+
+double MassSpringSimulator::kinetic_energy() const {
+  double e = 0.0;
+  for (int i = 0; i < num_nodes(); ++i)
+    e += 0.5 * m_impl->model->mass[i] * m_impl->v.segment<3>(3 * i).squaredNorm();
+  return e;
+}
+
+}  // namespace pbve::mass_spring

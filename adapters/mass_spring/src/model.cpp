@@ -1,0 +1,341 @@
+#include "model.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+#include <unordered_map>
+
+#include <tbb/parallel_for.h>
+#include <Eigen/Geometry>
+
+namespace pbve::mass_spring::detail {
+
+namespace {
+
+using Eigen::Vector3d;
+
+Vector3d row(const Vertices& v, int i) {
+  return v.row(i).transpose();
+}
+
+// Generalized winding number of a closed (or nearly closed) surface at p.
+double winding_number(const Vertices& x, const Triangles& t, const Vector3d& p) {
+  double total = 0.0;
+  for (Eigen::Index f = 0; f < t.rows(); ++f) {
+    const Vector3d a = row(x, t(f, 0)) - p, b = row(x, t(f, 1)) - p, c = row(x, t(f, 2)) - p;
+    const double la = a.norm(), lb = b.norm(), lc = c.norm();
+    const double num = a.dot(b.cross(c));
+    const double den = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+    total += 2.0 * std::atan2(num, den);
+  }
+  return total / (4.0 * std::numbers::pi);
+}
+
+struct EdgeInfo {
+  int a, b;
+  std::vector<int> opposite;  // opposite vertex of each adjacent triangle
+  double area = 0.0;          // a third of each adjacent triangle's area
+};
+
+std::vector<EdgeInfo> collect_edges(const Triangles& t, const Eigen::VectorXd& tri_area) {
+  struct Item {
+    int a, b, opp, tri;
+  };
+  std::vector<Item> items;
+  items.reserve(static_cast<size_t>(3 * t.rows()));
+  for (Eigen::Index f = 0; f < t.rows(); ++f)
+    for (int e = 0; e < 3; ++e) {
+      const int i = t(f, e), j = t(f, (e + 1) % 3), k = t(f, (e + 2) % 3);
+      items.push_back({std::min(i, j), std::max(i, j), k, static_cast<int>(f)});
+    }
+  std::sort(items.begin(), items.end(), [](const Item& p, const Item& q) {
+    return p.a != q.a ? p.a < q.a : (p.b != q.b ? p.b < q.b : p.tri < q.tri);
+  });
+  std::vector<EdgeInfo> edges;
+  for (size_t s = 0; s < items.size();) {
+    size_t e = s;
+    EdgeInfo info{items[s].a, items[s].b, {}, 0.0};
+    while (e < items.size() && items[e].a == info.a && items[e].b == info.b) {
+      info.opposite.push_back(items[e].opp);
+      info.area += tri_area[items[e].tri] / 3.0;
+      ++e;
+    }
+    edges.push_back(std::move(info));
+    s = e;
+  }
+  return edges;
+}
+
+}  // namespace
+
+Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> anchors,
+                  const Params& params) {
+  params.validate();
+  const int nv = static_cast<int>(positions.rows());
+  if (nv == 0) throw std::invalid_argument("mass_spring: positions are empty");
+  if (mesh.num_vertices() != 0 && mesh.num_vertices() != nv)
+    throw std::invalid_argument("mass_spring: positions have " + std::to_string(nv) +
+                                " rows but the mesh has " + std::to_string(mesh.num_vertices()) +
+                                " vertices");
+  if (mesh.num_triangles() == 0) throw std::invalid_argument("mass_spring: mesh has no triangles");
+  if (!positions.allFinite())
+    throw std::invalid_argument("mass_spring: positions contain non-finite values");
+  const Triangles& tris = mesh.triangles;
+  for (Eigen::Index f = 0; f < tris.rows(); ++f)
+    for (int c = 0; c < 3; ++c)
+      if (tris(f, c) < 0 || tris(f, c) >= nv)
+        throw std::invalid_argument("mass_spring: triangle " + std::to_string(f) +
+                                    " has vertex index " + std::to_string(tris(f, c)) +
+                                    " out of range [0, " + std::to_string(nv) + ")");
+  std::sort(anchors.begin(), anchors.end());
+  for (size_t i = 0; i < anchors.size(); ++i) {
+    if (anchors[i] < 0 || anchors[i] >= nv)
+      throw std::invalid_argument("mass_spring: anchor " + std::to_string(anchors[i]) +
+                                  " out of range [0, " + std::to_string(nv) + ")");
+    if (i > 0 && anchors[i] == anchors[i - 1])
+      throw std::invalid_argument("mass_spring: anchor " + std::to_string(anchors[i]) +
+                                  " listed twice");
+  }
+
+  Model m;
+  m.params = params;
+  m.num_surface = nv;
+  m.anchors = anchors;
+
+  // Per-triangle areas and per-vertex area shares.
+  Eigen::VectorXd tri_area(tris.rows());
+  Eigen::VectorXd vertex_area = Eigen::VectorXd::Zero(nv);
+  double signed_volume = 0.0;
+  for (Eigen::Index f = 0; f < tris.rows(); ++f) {
+    const Vector3d a = row(positions, tris(f, 0)), b = row(positions, tris(f, 1)),
+                   c = row(positions, tris(f, 2));
+    tri_area[f] = 0.5 * (b - a).cross(c - a).norm();
+    for (int k = 0; k < 3; ++k) vertex_area[tris(f, k)] += tri_area[f] / 3.0;
+    signed_volume += a.dot(b.cross(c)) / 6.0;
+  }
+  const double total_area = tri_area.sum();
+  if (!(total_area > 0.0)) throw std::invalid_argument("mass_spring: mesh has zero area");
+
+  const std::vector<EdgeInfo> edges = collect_edges(tris, tri_area);
+  double edge_sum = 0.0;
+  for (const EdgeInfo& e : edges) edge_sum += (row(positions, e.b) - row(positions, e.a)).norm();
+  m.char_length = edge_sum / static_cast<double>(edges.size());
+  if (!(m.char_length > 0.0))
+    throw std::invalid_argument("mass_spring: all edges have zero length");
+
+  // Surface springs: edges (stretch), and across each interior edge (shear + bending).
+  auto add_spring = [&m](int a, int b, double rest, double k) {
+    if (a == b || !(k > 0.0) || !(rest > 0.0)) return;
+    m.springs.push_back({a, b, rest, k});
+  };
+  for (const EdgeInfo& e : edges) {
+    const double l0 = (row(positions, e.b) - row(positions, e.a)).norm();
+    add_spring(e.a, e.b, l0, params.stretch_stiffness * e.area / (l0 * l0));
+    if (e.opposite.size() == 2) {
+      const int c = e.opposite[0], d = e.opposite[1];
+      const double l1 = (row(positions, d) - row(positions, c)).norm();
+      if (l1 > 0.0)
+        add_spring(c, d, l1, (params.shear_stiffness * e.area + params.bend_stiffness) / (l1 * l1));
+    }
+  }
+
+  std::vector<Vector3d> lattice;  // interior node positions
+  const bool solid = params.material != Material::cloth;
+  Eigen::VectorXd surface_mass(nv);
+  Eigen::VectorXd lattice_mass;
+  if (!solid) {
+    surface_mass = params.density * vertex_area;
+  } else {
+    const double volume = std::abs(signed_volume);
+    if (!(volume > 1e-9 * std::pow(total_area, 1.5)))
+      throw std::invalid_argument(
+          "mass_spring: material '" + to_string(params.material) +
+          "' needs a closed surface that encloses a volume; this mesh encloses none (use cloth)");
+    const Vector3d lo = positions.colwise().minCoeff().transpose();
+    const Vector3d hi = positions.colwise().maxCoeff().transpose();
+    const double target_nodes = params.material == Material::stiff ? 1500.0 : 500.0;
+    double s = params.lattice_spacing;
+    if (s == 0.0) s = std::cbrt(volume / target_nodes);
+    const Vector3d extent = hi - lo, center = 0.5 * (hi + lo);
+    Eigen::Vector3i n;
+    for (int k = 0; k < 3; ++k) n[k] = std::max(1, static_cast<int>(std::ceil(extent[k] / s)));
+    if (static_cast<double>(n[0]) * n[1] * n[2] > 2e6)
+      throw std::invalid_argument("mass_spring: parameter lattice_spacing " + std::to_string(s) +
+                                  " m gives more than 2e6 lattice cells; choose a larger one");
+    const Vector3d origin = center - 0.5 * s * (n.cast<double>() - Vector3d::Ones());
+    const int cells = n[0] * n[1] * n[2];
+    std::vector<char> inside(static_cast<size_t>(cells), 0);
+    auto cell_pos = [&](int id) {
+      const int i = id % n[0], j = (id / n[0]) % n[1], k = id / (n[0] * n[1]);
+      return Vector3d(origin + s * Vector3d(i, j, k));
+    };
+    tbb::parallel_for(0, cells, [&](int id) {
+      inside[static_cast<size_t>(id)] =
+          std::abs(winding_number(positions, tris, cell_pos(id))) > 0.5 ? 1 : 0;
+    });
+    std::vector<int> lattice_id(static_cast<size_t>(cells), -1);
+    for (int id = 0; id < cells; ++id)
+      if (inside[static_cast<size_t>(id)]) {
+        lattice_id[static_cast<size_t>(id)] = static_cast<int>(lattice.size());
+        lattice.push_back(cell_pos(id));
+      }
+    const double E = params.volume_stiffness;
+    // Lattice springs: 3 axis, 6 face-diagonal and 4 body-diagonal neighbours per node (each
+    // pair once), each standing for a quarter of a cell volume.
+    const int offsets[13][3] = {{1, 0, 0},  {0, 1, 0},  {0, 0, 1},  {1, 1, 0},  {1, -1, 0},
+                                {1, 0, 1},  {1, 0, -1}, {0, 1, 1},  {0, 1, -1}, {1, 1, 1},
+                                {1, 1, -1}, {1, -1, 1}, {1, -1, -1}};
+    for (int id = 0; id < cells; ++id) {
+      const int a = lattice_id[static_cast<size_t>(id)];
+      if (a < 0) continue;
+      const int i = id % n[0], j = (id / n[0]) % n[1], k = id / (n[0] * n[1]);
+      for (const auto& o : offsets) {
+        const int i2 = i + o[0], j2 = j + o[1], k2 = k + o[2];
+        if (i2 < 0 || j2 < 0 || k2 < 0 || i2 >= n[0] || j2 >= n[1] || k2 >= n[2]) continue;
+        const int b = lattice_id[static_cast<size_t>(i2 + n[0] * (j2 + n[1] * k2))];
+        if (b < 0) continue;
+        const double l0 =
+            s * std::sqrt(static_cast<double>(o[0] * o[0] + o[1] * o[1] + o[2] * o[2]));
+        add_spring(nv + a, nv + b, l0, E * 0.25 * s * s * s / (l0 * l0));
+      }
+    }
+    // Ties: each surface vertex to up to 8 lattice nodes within 1.5 s (else its nearest node
+    // within 3 s), sharing a shell volume of area * s; rest lengths below s/2 count as s/2 in
+    // the stiffness to avoid extreme springs.
+    if (!lattice.empty()) {
+      for (int v = 0; v < nv; ++v) {
+        const Vector3d p = row(positions, v);
+        const Vector3d g = (p - origin) / s;
+        std::vector<std::pair<double, int>> near;
+        for (int dk = -2; dk <= 3; ++dk)
+          for (int dj = -2; dj <= 3; ++dj)
+            for (int di = -2; di <= 3; ++di) {
+              const int i = static_cast<int>(std::floor(g[0])) + di,
+                        j = static_cast<int>(std::floor(g[1])) + dj,
+                        k = static_cast<int>(std::floor(g[2])) + dk;
+              if (i < 0 || j < 0 || k < 0 || i >= n[0] || j >= n[1] || k >= n[2]) continue;
+              const int b = lattice_id[static_cast<size_t>(i + n[0] * (j + n[1] * k))];
+              if (b < 0) continue;
+              const double d = (lattice[static_cast<size_t>(b)] - p).norm();
+              if (d <= 3.0 * s) near.push_back({d, b});
+            }
+        std::sort(near.begin(), near.end());
+        size_t count = 0;
+        while (count < near.size() && count < 8 && near[count].first <= 1.5 * s) ++count;
+        if (count == 0 && !near.empty()) count = 1;
+        for (size_t q = 0; q < count; ++q) {
+          const double l0 = near[q].first, le = std::max(l0, 0.5 * s);
+          add_spring(v, nv + near[q].second, l0,
+                     E * vertex_area[v] * s / static_cast<double>(count) / (le * le));
+        }
+      }
+    }
+    // Masses: each lattice node carries a cell, the surface carries the rest of the volume in
+    // proportion to vertex area (at least 20% of it); scaled to density * volume in total.
+    const double cell_volume = s * s * s;
+    const double nl = static_cast<double>(lattice.size());
+    const double shell = std::max(volume - nl * cell_volume, 0.2 * volume);
+    const double scale = volume / (shell + nl * cell_volume);
+    surface_mass = params.density * scale * shell * vertex_area / total_area;
+    lattice_mass = Eigen::VectorXd::Constant(static_cast<Eigen::Index>(lattice.size()),
+                                             params.density * scale * cell_volume);
+  }
+  // Vertices in no triangle of nonzero area get the mean vertex mass (they move freely).
+  const double mean_mass = surface_mass.sum() / nv;
+  for (int v = 0; v < nv; ++v)
+    if (!(surface_mass[v] > 0.0)) surface_mass[v] = mean_mass;
+
+  // Drop lattice nodes without springs.
+  {
+    std::vector<int> degree(lattice.size(), 0);
+    for (const Spring& sp : m.springs) {
+      if (sp.a >= nv) ++degree[static_cast<size_t>(sp.a - nv)];
+      if (sp.b >= nv) ++degree[static_cast<size_t>(sp.b - nv)];
+    }
+    std::vector<int> remap(lattice.size(), -1);
+    std::vector<Vector3d> kept;
+    std::vector<double> kept_mass;
+    for (size_t i = 0; i < lattice.size(); ++i)
+      if (degree[i] > 0) {
+        remap[i] = static_cast<int>(kept.size());
+        kept.push_back(lattice[i]);
+        kept_mass.push_back(lattice_mass[static_cast<Eigen::Index>(i)]);
+      }
+    for (Spring& sp : m.springs) {
+      if (sp.a >= nv) sp.a = nv + remap[static_cast<size_t>(sp.a - nv)];
+      if (sp.b >= nv) sp.b = nv + remap[static_cast<size_t>(sp.b - nv)];
+    }
+    lattice = std::move(kept);
+    lattice_mass =
+        Eigen::Map<Eigen::VectorXd>(kept_mass.data(), static_cast<Eigen::Index>(kept_mass.size()));
+  }
+
+  m.num_nodes = nv + static_cast<int>(lattice.size());
+  m.mass.resize(m.num_nodes);
+  m.mass.head(nv) = surface_mass;
+  if (!lattice.empty()) m.mass.tail(static_cast<Eigen::Index>(lattice.size())) = lattice_mass;
+  m.rest.resize(3 * m.num_nodes);
+  for (int v = 0; v < nv; ++v) m.rest.segment<3>(3 * v) = row(positions, v);
+  for (size_t i = 0; i < lattice.size(); ++i)
+    m.rest.segment<3>(3 * (nv + static_cast<Eigen::Index>(i))) = lattice[i];
+  for (Eigen::Index i = 0; i < m.mass.size(); ++i)
+    if (!(m.mass[i] > 0.0) || !std::isfinite(m.mass[i]))
+      throw std::invalid_argument("mass_spring: node " + std::to_string(i) +
+                                  " has a non-positive mass; check parameter density");
+
+  // Free blocks.
+  m.free_index.assign(static_cast<size_t>(m.num_nodes), 0);
+  for (int a : m.anchors) m.free_index[static_cast<size_t>(a)] = -1;
+  for (int i = 0; i < m.num_nodes; ++i)
+    if (m.free_index[static_cast<size_t>(i)] >= 0) {
+      m.free_index[static_cast<size_t>(i)] = static_cast<int>(m.free_nodes.size());
+      m.free_nodes.push_back(i);
+    }
+
+  // Sparsity pattern of the free-free matrix and block offsets.
+  const int nf = static_cast<int>(m.free_nodes.size());
+  std::vector<Eigen::Triplet<double>> trip;
+  auto add_block = [&trip](int r, int c) {
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) trip.emplace_back(3 * r + i, 3 * c + j, 0.0);
+  };
+  for (int f = 0; f < nf; ++f) add_block(f, f);
+  for (const Spring& sp : m.springs) {
+    const int fa = m.free_index[static_cast<size_t>(sp.a)];
+    const int fb = m.free_index[static_cast<size_t>(sp.b)];
+    if (fa >= 0 && fb >= 0) {
+      add_block(fa, fb);
+      add_block(fb, fa);
+    }
+  }
+  m.pattern.resize(3 * nf, 3 * nf);
+  m.pattern.setFromTriplets(trip.begin(), trip.end());
+  m.pattern.makeCompressed();
+  const auto& P = m.pattern;
+  auto offset = [&P](int r, int c, int j) {
+    const int col = 3 * c + j;
+    const int* begin = P.innerIndexPtr() + P.outerIndexPtr()[col];
+    const int* end = P.innerIndexPtr() + P.outerIndexPtr()[col + 1];
+    const int* it = std::lower_bound(begin, end, 3 * r);
+    return static_cast<int>(it - P.innerIndexPtr());
+  };
+  m.diag_offset.resize(static_cast<size_t>(nf));
+  for (int f = 0; f < nf; ++f)
+    for (int j = 0; j < 3; ++j)
+      m.diag_offset[static_cast<size_t>(f)][static_cast<size_t>(j)] = offset(f, f, j);
+  m.spring_offset.resize(m.springs.size());
+  for (size_t s = 0; s < m.springs.size(); ++s) {
+    const int fa = m.free_index[static_cast<size_t>(m.springs[s].a)];
+    const int fb = m.free_index[static_cast<size_t>(m.springs[s].b)];
+    for (int j = 0; j < 3; ++j) {
+      m.spring_offset[s][static_cast<size_t>(j)] = (fa >= 0 && fb >= 0) ? offset(fa, fb, j) : -1;
+      m.spring_offset[s][static_cast<size_t>(3 + j)] =
+          (fa >= 0 && fb >= 0) ? offset(fb, fa, j) : -1;
+    }
+  }
+  return m;
+}
+
+}  // namespace pbve::mass_spring::detail

@@ -1,0 +1,47 @@
+#pragma once
+// The immutable part of a mass-spring simulator: nodes, masses, springs, anchors and the
+// sparsity pattern of the free-free system matrix (shared between clones).
+
+#include <array>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/SparseCore>
+
+#include "pbve/core/mesh.hpp"
+#include "pbve/mass_spring/mass_spring.hpp"
+
+namespace pbve::mass_spring::detail {
+
+struct Spring {
+  int a = 0, b = 0;   // node ids
+  double rest = 0.0;  // rest length, m
+  double k = 0.0;     // stiffness, N/m
+};
+
+struct Model {
+  Params params;
+  int num_surface = 0;
+  int num_nodes = 0;
+  Eigen::VectorXd mass;  // per node, kg
+  Eigen::VectorXd rest;  // 3 * num_nodes rest positions (surface + lattice)
+  std::vector<Spring> springs;
+  std::vector<int> anchors;     // sorted surface vertex ids
+  std::vector<int> free_index;  // per node: free block index, or -1 for anchors
+  std::vector<int> free_nodes;  // free block -> node
+  double char_length = 1.0;     // mean rest edge length of the surface, m
+
+  // Free-free system matrix pattern (3 * #free square, both triangles stored, 3x3 blocks).
+  Eigen::SparseMatrix<double> pattern;
+  // For a block (r, c), offset[j] = index into valuePtr() of entry (3r, 3c + j); rows 3r+1,
+  // 3r+2 follow. Diagonal blocks per free block, off-diagonal (a,b) and (b,a) per spring
+  // (-1 when an end is anchored).
+  std::vector<std::array<int, 3>> diag_offset;
+  std::vector<std::array<int, 6>> spring_offset;
+};
+
+/// Builds the model; throws std::invalid_argument on bad input.
+Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> anchors,
+                  const Params& params);
+
+}  // namespace pbve::mass_spring::detail
