@@ -52,7 +52,7 @@ ViolationMetric violation_metric(const RayScene& simulated, const Camera& camera
                              // meets the back side.
                              if (k == 2)
                                ++c.interior;
-                             else if (k == 1 || (back_faces_violate && ng_dot_dir < 0.0f))
+                             else if (k == 1 || (back_faces_violate && ng_dot_dir > 0.0f))
                                ++c.violating;
                            });
   Counts total;
