@@ -1,0 +1,717 @@
+#include "pbve/control/optimizer.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+
+#include <tbb/parallel_for.h>
+
+#include "control/solvers.hpp"
+
+namespace pbve {
+
+namespace {
+
+constexpr double kStandardGravity = 9.80665;  // m/s^2
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// Everything one frame's (window's) optimization needs. Variables z are the control
+// components of the active blocks, frame-major, in units of the block weight.
+class WindowProblem {
+ public:
+  WindowProblem(Simulator& sim, std::span<const ControlFrameInput> window, int frames,
+                const Triangles& triangles, const std::vector<std::uint8_t>& interior,
+                const ControlOptions& options, const Eigen::VectorXd& previous)
+      : m_sim(sim), m_triangles(triangles), m_options(options) {
+    m_layout = sim.control_layout();
+    m_bs = m_layout.block_size();
+    m_size = m_layout.size();
+    if (m_layout.block_mass.size() != m_layout.num_blocks)
+      throw std::invalid_argument("ControlLayout::block_mass has the wrong size");
+    m_frames = frames;
+    const auto nf = static_cast<size_t>(triangles.rows());
+    const Vertices x0 = sim.positions();
+    for (Eigen::Index j = 0; j < triangles.rows(); ++j)
+      for (int c = 0; c < 3; ++c)
+        if (triangles(j, c) < 0 || triangles(j, c) >= x0.rows())
+          throw std::invalid_argument("ControlOptimizer: triangle " + std::to_string(j) +
+                                      " refers to a vertex the simulator does not have");
+    const Eigen::VectorXd weights = visibility_weights(x0, triangles);
+    for (int k = 0; k < frames; ++k) {
+      const ControlFrameInput& in = window[static_cast<size_t>(k)];
+      if (in.unobserved.size() != nf)
+        throw std::invalid_argument("ControlFrameInput::unobserved of frame " + std::to_string(k) +
+                                    " has " + std::to_string(in.unobserved.size()) +
+                                    " entries, expected " + std::to_string(nf));
+      StepInput s;
+      s.dt = in.dt;
+      s.anchor_targets = in.anchor_targets;
+      m_inputs.push_back(std::move(s));
+      std::vector<std::uint8_t> pen(nf, 0);
+      for (size_t j = 0; j < nf; ++j)
+        pen[j] =
+            in.unobserved[j] || (options.penalize_interior && !interior.empty() && interior[j]);
+      m_penalized.push_back(std::move(pen));
+    }
+    m_weights = weights;
+    m_previous = previous.size() == m_size ? previous : Eigen::VectorXd::Zero(m_size);
+    m_eps.resize(m_layout.num_blocks * (m_bs / 3));
+    for (int b = 0; b < m_layout.num_blocks; ++b)
+      for (int p = 0; p < m_bs / 3; ++p)
+        m_eps[b * (m_bs / 3) + p] = options.force_smoothing * m_layout.block_mass[b] *
+                                    kStandardGravity * (p == 0 ? 1.0 : options.torque_arm);
+    m_fixed.assign(static_cast<size_t>(frames), Eigen::VectorXd::Zero(m_size));
+    m_state0 = sim.save();
+  }
+
+  const ControlLayout& layout() const { return m_layout; }
+  int frames() const { return m_frames; }
+  int size() const { return m_size; }
+  int num_variables() const { return m_frames * static_cast<int>(m_active.size()) * m_bs; }
+  const SimState& state0() const { return m_state0; }
+  const std::vector<std::uint8_t>& penalized(int k) const {
+    return m_penalized[static_cast<size_t>(k)];
+  }
+  const Eigen::VectorXd& previous() const { return m_previous; }
+
+  void set_active(std::vector<int> active) {
+    m_active = std::move(active);
+    const int na = static_cast<int>(m_active.size());
+    m_scale.resize(na * m_bs);
+    for (int a = 0; a < na; ++a)
+      for (int c = 0; c < m_bs; ++c)
+        m_scale[a * m_bs + c] = m_layout.block_mass[m_active[static_cast<size_t>(a)]] *
+                                kStandardGravity * (c < 3 ? 1.0 : m_options.torque_arm);
+  }
+  void set_fixed(const Eigen::VectorXd& u) {
+    for (int k = 0; k < m_frames; ++k)
+      m_fixed[static_cast<size_t>(k)] = u.segment(k * m_size, m_size);
+  }
+  // Component index in a frame's control vector of variable i (within one frame).
+  int component(int i) const { return m_active[static_cast<size_t>(i / m_bs)] * m_bs + i % m_bs; }
+  double scale(int i) const { return m_scale[i % (static_cast<int>(m_active.size()) * m_bs)]; }
+
+  // z from full controls (frame-major).
+  Eigen::VectorXd to_z(const Eigen::VectorXd& u) const {
+    const int nv = static_cast<int>(m_active.size()) * m_bs;
+    Eigen::VectorXd z(num_variables());
+    for (int k = 0; k < m_frames; ++k)
+      for (int i = 0; i < nv; ++i) z[k * nv + i] = u[k * m_size + component(i)] / m_scale[i];
+    return z;
+  }
+  std::vector<Eigen::VectorXd> expand(const double* z) const {
+    const int nv = static_cast<int>(m_active.size()) * m_bs;
+    std::vector<Eigen::VectorXd> u = m_fixed;
+    for (int k = 0; k < m_frames; ++k)
+      for (int i = 0; i < nv; ++i)
+        u[static_cast<size_t>(k)][component(i)] = z[k * nv + i] * m_scale[i];
+    return u;
+  }
+
+  // EC of frame k at positions x (and its gradient).
+  double visibility(int k, const Vertices& x, Vertices* grad) const {
+    return visibility_energy(x, m_triangles, m_penalized[static_cast<size_t>(k)], m_weights,
+                             m_options.barrier, grad);
+  }
+
+  // lF EF + lT ET over the window with gradients w.r.t. each frame's full control.
+  double force_terms(const std::vector<Eigen::VectorXd>& u, std::vector<Eigen::VectorXd>* grad,
+                     double* ef_sum, double* et_sum) const {
+    const int nb = static_cast<int>(m_eps.size());
+    const int block = 3;
+    double ef = 0.0, et = 0.0;
+    Eigen::VectorXd g1, g2;
+    if (grad) grad->assign(u.size(), Eigen::VectorXd::Zero(m_size));
+    for (size_t k = 0; k < u.size(); ++k) {
+      const Eigen::VectorXd& prev = k == 0 ? m_previous : u[k - 1];
+      ef += smoothed_norm_sum(u[k], block, m_eps, grad ? &g1 : nullptr);
+      et += smoothed_norm_sum(u[k] - prev, block, m_eps, grad ? &g2 : nullptr);
+      if (grad) {
+        (*grad)[k] += m_options.weights.force * g1 + m_options.weights.temporal * g2;
+        if (k > 0) (*grad)[k - 1] -= m_options.weights.temporal * g2;
+      }
+    }
+    (void)nb;
+    if (ef_sum) *ef_sum = ef;
+    if (et_sum) *et_sum = et;
+    return m_options.weights.force * ef + m_options.weights.temporal * et;
+  }
+
+  // Simulates frames k0.. from `start` with controls u (frame k0's component `comp` shifted
+  // by `delta` when comp >= 0) on `sim`; returns the sum of EC over those frames.
+  double probe(Simulator& sim, const SimState& start, int k0, const std::vector<Eigen::VectorXd>& u,
+               int comp, double delta) const {
+    sim.restore(start);
+    double ec = 0.0;
+    StepInput in;
+    for (int k = k0; k < m_frames; ++k) {
+      const StepInput& base = m_inputs[static_cast<size_t>(k)];
+      in.dt = base.dt;
+      in.anchor_targets = base.anchor_targets;
+      in.control = u[static_cast<size_t>(k)];
+      if (k == k0 && comp >= 0) in.control[comp] += delta;
+      sim.step(in);
+      ec += visibility(k, sim.positions(), nullptr);
+    }
+    return ec;
+  }
+
+  // Facing values of the penalized triangles of frame k at positions x (NaN elsewhere).
+  Eigen::VectorXd facing(int k, const Vertices& x) const {
+    Eigen::VectorXd s =
+        Eigen::VectorXd::Constant(m_triangles.rows(), std::numeric_limits<double>::quiet_NaN());
+    for (Eigen::Index j = 0; j < m_triangles.rows(); ++j)
+      if (m_penalized[static_cast<size_t>(k)][static_cast<size_t>(j)])
+        s[j] =
+            facing_value(x.row(m_triangles(j, 0)).transpose(), x.row(m_triangles(j, 1)).transpose(),
+                         x.row(m_triangles(j, 2)).transpose(), nullptr);
+    return s;
+  }
+
+  StepInput input(int k, const Eigen::VectorXd& u) const {
+    StepInput in = m_inputs[static_cast<size_t>(k)];
+    in.control = u;
+    return in;
+  }
+
+  struct Eval {
+    double energy = 0.0, ec = 0.0, ef = 0.0, et = 0.0;
+  };
+
+  // Energy at z; gradient dE/dz when grad is not null.
+  Eval evaluate(const double* z, double* grad, bool adjoint, bool parallel) {
+    const std::vector<Eigen::VectorXd> u = expand(z);
+    Eval ev;
+    ev.energy = force_terms(u, nullptr, &ev.ef, &ev.et);
+    std::vector<SimState> states;
+    std::vector<Vertices> dx;
+    m_sim.restore(m_state0);
+    for (int k = 0; k < m_frames; ++k) {
+      if (grad) states.push_back(m_sim.save());
+      m_sim.step(input(k, u[static_cast<size_t>(k)]));
+      Vertices g;
+      ev.ec += visibility(k, m_sim.positions(), grad && adjoint ? &g : nullptr);
+      if (grad && adjoint) dx.push_back(std::move(g));
+    }
+    ev.energy += m_options.weights.visibility * ev.ec;
+    if (!grad) return ev;
+
+    const auto t0 = Clock::now();
+    std::vector<Eigen::VectorXd> gu;
+    force_terms(u, &gu, nullptr, nullptr);
+    const int nv = static_cast<int>(m_active.size()) * m_bs;
+    const double lc = m_options.weights.visibility;
+    if (adjoint) {
+      Eigen::VectorXd gs = Eigen::VectorXd::Zero(m_sim.state_dim());
+      for (int k = m_frames - 1; k >= 0; --k) {
+        gs += m_sim.position_cotangent(dx[static_cast<size_t>(k)]);
+        StepVjp vjp =
+            m_sim.step_vjp(states[static_cast<size_t>(k)], input(k, u[static_cast<size_t>(k)]), gs);
+        gu[static_cast<size_t>(k)] += lc * vjp.control;
+        gs = std::move(vjp.state);
+      }
+      for (int k = 0; k < m_frames; ++k)
+        for (int i = 0; i < nv; ++i)
+          grad[k * nv + i] = gu[static_cast<size_t>(k)][component(i)] * m_scale[i];
+    } else {
+      const int n = num_variables();
+      std::vector<double> ep(static_cast<size_t>(n)), em(static_cast<size_t>(n));
+      const double h = m_options.fd_step;
+      auto run = [&](Simulator& sim, int q) {
+        const int i = q / 2, k = i / nv, c = component(i % nv);
+        const double delta = h * m_scale[i % nv];
+        const double e =
+            probe(sim, states[static_cast<size_t>(k)], k, u, c, q % 2 == 0 ? delta : -delta);
+        (q % 2 == 0 ? ep : em)[static_cast<size_t>(i)] = e;
+      };
+      if (parallel) {
+        std::mutex mutex;
+        std::vector<std::unique_ptr<Simulator>> owned;
+        std::vector<Simulator*> free;
+        tbb::parallel_for(0, 2 * n, [&](int q) {
+          Simulator* s = nullptr;
+          {
+            std::lock_guard<std::mutex> lock(mutex);
+            if (free.empty()) {
+              owned.push_back(m_sim.clone());
+              free.push_back(owned.back().get());
+            }
+            s = free.back();
+            free.pop_back();
+          }
+          run(*s, q);
+          std::lock_guard<std::mutex> lock(mutex);
+          free.push_back(s);
+        });
+      } else {
+        for (int q = 0; q < 2 * n; ++q) run(m_sim, q);
+      }
+      for (int i = 0; i < n; ++i) {
+        const int k = i / nv;
+        const double dec = (ep[static_cast<size_t>(i)] - em[static_cast<size_t>(i)]) / (2.0 * h);
+        grad[i] = gu[static_cast<size_t>(k)][component(i % nv)] * m_scale[i % nv] + lc * dec;
+      }
+    }
+    m_gradient_ms += ms_since(t0);
+    ++m_gradients;
+    return ev;
+  }
+
+  // Hard-constraint mode: c = margin - s_j <= 0 for the listed (frame, triangle) pairs, and
+  // the Jacobian by central differences.
+  void set_constraints(std::vector<std::pair<int, int>> list) { m_constraints = std::move(list); }
+  int num_constraints() const { return static_cast<int>(m_constraints.size()); }
+  void constraints(const double* z, double* c, double* jac, bool parallel) {
+    const std::vector<Eigen::VectorXd> u = expand(z);
+    const int m = num_constraints();
+    auto values = [&](Simulator& sim, const SimState& start, int k0,
+                      const std::vector<Eigen::VectorXd>& uu, int comp, double delta,
+                      std::vector<SimState>* states) {
+      Eigen::VectorXd out = Eigen::VectorXd::Zero(m);
+      sim.restore(start);
+      for (int k = k0; k < m_frames; ++k) {
+        if (states) states->push_back(sim.save());
+        StepInput in = input(k, uu[static_cast<size_t>(k)]);
+        if (k == k0 && comp >= 0) in.control[comp] += delta;
+        sim.step(in);
+        const Eigen::VectorXd s = facing(k, sim.positions());
+        for (int j = 0; j < m; ++j)
+          if (m_constraints[static_cast<size_t>(j)].first == k)
+            out[j] = m_options.barrier.margin - s[m_constraints[static_cast<size_t>(j)].second];
+      }
+      return out;
+    };
+    std::vector<SimState> states;
+    const Eigen::VectorXd c0 = values(m_sim, m_state0, 0, u, -1, 0.0, &states);
+    for (int j = 0; j < m; ++j) c[j] = c0[j];
+    if (!jac) return;
+    const auto t0 = Clock::now();
+    const int n = num_variables();
+    const int nv = static_cast<int>(m_active.size()) * m_bs;
+    const double h = m_options.fd_step;
+    std::vector<Eigen::VectorXd> cp(static_cast<size_t>(n)), cm(static_cast<size_t>(n));
+    auto run = [&](Simulator& sim, int q) {
+      const int i = q / 2, k = i / nv;
+      const double delta = h * m_scale[i % nv];
+      Eigen::VectorXd v = values(sim, states[static_cast<size_t>(k)], k, u, component(i % nv),
+                                 q % 2 == 0 ? delta : -delta, nullptr);
+      // Constraints of earlier frames do not depend on this variable.
+      for (int j = 0; j < m; ++j)
+        if (m_constraints[static_cast<size_t>(j)].first < k) v[j] = c0[j];
+      (q % 2 == 0 ? cp : cm)[static_cast<size_t>(i)] = std::move(v);
+    };
+    if (parallel) {
+      std::mutex mutex;
+      std::vector<std::unique_ptr<Simulator>> owned;
+      std::vector<Simulator*> free;
+      tbb::parallel_for(0, 2 * n, [&](int q) {
+        Simulator* s = nullptr;
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          if (free.empty()) {
+            owned.push_back(m_sim.clone());
+            free.push_back(owned.back().get());
+          }
+          s = free.back();
+          free.pop_back();
+        }
+        run(*s, q);
+        std::lock_guard<std::mutex> lock(mutex);
+        free.push_back(s);
+      });
+    } else {
+      for (int q = 0; q < 2 * n; ++q) run(m_sim, q);
+    }
+    for (int j = 0; j < m; ++j)
+      for (int i = 0; i < n; ++i)
+        jac[j * n + i] =
+            (cp[static_cast<size_t>(i)][j] - cm[static_cast<size_t>(i)][j]) / (2.0 * h);
+    m_gradient_ms += ms_since(t0);
+  }
+
+  double gradient_ms() const { return m_gradient_ms; }
+  int gradients() const { return m_gradients; }
+
+ private:
+  Simulator& m_sim;
+  const Triangles& m_triangles;
+  const ControlOptions& m_options;
+  ControlLayout m_layout;
+  int m_bs = 3, m_size = 0, m_frames = 1;
+  std::vector<StepInput> m_inputs;
+  std::vector<std::vector<std::uint8_t>> m_penalized;
+  Eigen::VectorXd m_weights;
+  Eigen::VectorXd m_previous;
+  Eigen::VectorXd m_eps;
+  std::vector<Eigen::VectorXd> m_fixed;
+  SimState m_state0;
+  std::vector<int> m_active;
+  Eigen::VectorXd m_scale;
+  std::vector<std::pair<int, int>> m_constraints;
+  double m_gradient_ms = 0.0;
+  int m_gradients = 0;
+};
+
+bool use_adjoint(const Simulator& sim, GradientMode mode) {
+  switch (mode) {
+    case GradientMode::central:
+      return false;
+    case GradientMode::adjoint:
+      if (!sim.has_derivatives())
+        throw std::invalid_argument("gradient: adjoint requested but " + sim.name() +
+                                    " offers no derivatives");
+      return true;
+    case GradientMode::automatic:
+      return sim.has_derivatives();
+  }
+  return false;
+}
+
+int window_frames(const ControlOptions& options, std::span<const ControlFrameInput> window) {
+  if (window.empty()) throw std::invalid_argument("ControlOptimizer: empty window");
+  return std::min<int>(std::max(options.window, 1), static_cast<int>(window.size()));
+}
+
+// Blocks moving free vertices (anchored vertices and vertices without a block excluded).
+std::vector<char> free_blocks(const Simulator& sim, const ControlLayout& layout) {
+  std::vector<char> is_free(static_cast<size_t>(layout.num_blocks), 0);
+  std::vector<char> anchored(static_cast<size_t>(sim.num_vertices()), 0);
+  for (int a : sim.anchors()) anchored[static_cast<size_t>(a)] = 1;
+  for (size_t v = 0; v < layout.vertex_block.size(); ++v)
+    if (layout.vertex_block[v] >= 0 && !anchored[v])
+      is_free[static_cast<size_t>(layout.vertex_block[v])] = 1;
+  return is_free;
+}
+
+double free_force_sum(const Simulator& sim, const Vertices& forces) {
+  std::vector<char> anchored(static_cast<size_t>(sim.num_vertices()), 0);
+  for (int a : sim.anchors()) anchored[static_cast<size_t>(a)] = 1;
+  double sum = 0.0;
+  for (Eigen::Index v = 0; v < forces.rows(); ++v)
+    if (!anchored[static_cast<size_t>(v)]) sum += forces.row(v).norm();
+  return sum;
+}
+
+double control_force_sum(const Eigen::VectorXd& u, int bs) {
+  double sum = 0.0;
+  for (Eigen::Index b = 0; b * bs < u.size(); ++b) sum += u.segment(b * bs, 3).norm();
+  return sum;
+}
+
+}  // namespace
+
+const char* to_string(ControlStatus status) {
+  switch (status) {
+    case ControlStatus::converged:
+      return "converged";
+    case ControlStatus::iteration_limit:
+      return "iteration_limit";
+    case ControlStatus::failed:
+      return "failed";
+    case ControlStatus::cancelled:
+      return "cancelled";
+  }
+  return "unknown";
+}
+
+const char* to_string(ControlSolver solver) {
+  switch (solver) {
+    case ControlSolver::slsqp:
+      return "slsqp";
+    case ControlSolver::mma:
+      return "mma";
+    case ControlSolver::lbfgs:
+      return "lbfgs";
+    case ControlSolver::cobyla:
+      return "cobyla";
+    case ControlSolver::ipopt:
+      return "ipopt";
+  }
+  return "unknown";
+}
+
+ControlSolver parse_control_solver(const std::string& name) {
+  for (ControlSolver s : {ControlSolver::slsqp, ControlSolver::mma, ControlSolver::lbfgs,
+                          ControlSolver::cobyla, ControlSolver::ipopt})
+    if (name == to_string(s)) return s;
+  throw std::invalid_argument("unknown solver '" + name +
+                              "' (expected slsqp, mma, lbfgs, cobyla or ipopt)");
+}
+
+ControlOptimizer::ControlOptimizer(Triangles triangles, std::vector<std::uint8_t> interior,
+                                   ControlOptions options)
+    : m_triangles(std::move(triangles)), m_interior(std::move(interior)) {
+  if (!m_interior.empty() && m_interior.size() != static_cast<size_t>(m_triangles.rows()))
+    throw std::invalid_argument("ControlOptimizer: interior has " +
+                                std::to_string(m_interior.size()) + " entries, expected " +
+                                std::to_string(m_triangles.rows()));
+  set_options(options);
+  const int nv = m_triangles.size() > 0 ? m_triangles.maxCoeff() + 1 : 0;
+  m_adjacency = vertex_adjacency(m_triangles, nv);
+}
+
+void ControlOptimizer::set_options(const ControlOptions& options) {
+  if (options.window < 1) throw std::invalid_argument("control window must be >= 1");
+  if (!(options.fd_step > 0.0)) throw std::invalid_argument("fd_step must be positive");
+  if (options.force_bound < 0.0) throw std::invalid_argument("force_bound must be >= 0");
+  if (!(options.force_smoothing > 0.0))
+    throw std::invalid_argument("force_smoothing must be positive");
+  if (!(options.barrier.margin > 0.0) ||
+      !(options.barrier.clamp > 0.0 && options.barrier.clamp < 1.0))
+    throw std::invalid_argument("barrier needs margin > 0 and 0 < clamp < 1");
+  if (options.max_evaluations < 1) throw std::invalid_argument("max_evaluations must be >= 1");
+  if (options.constraint == ConstraintMode::hard && options.solver == ControlSolver::lbfgs)
+    throw std::invalid_argument("the hard-constraint mode needs slsqp, mma, cobyla or ipopt");
+  m_options = options;
+}
+
+std::vector<int> ControlOptimizer::active_blocks(Simulator& sim,
+                                                 std::span<const ControlFrameInput> window) {
+  const int frames = window_frames(m_options, window);
+  const ControlLayout layout = sim.control_layout();
+  const std::vector<char> is_free = free_blocks(sim, layout);
+  std::vector<int> out;
+  if (m_options.active_set == ActiveSet::all) {
+    for (int b = 0; b < layout.num_blocks; ++b)
+      if (is_free[static_cast<size_t>(b)]) out.push_back(b);
+    return out;
+  }
+  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
+  const int nvtx = sim.num_vertices();
+  std::vector<char> seed(static_cast<size_t>(nvtx), 0);
+  auto mark = [&](int k, const Vertices& x) {
+    const Eigen::VectorXd s = problem.facing(k, x);
+    for (Eigen::Index j = 0; j < m_triangles.rows(); ++j)
+      if (problem.penalized(k)[static_cast<size_t>(j)] && s[j] < m_options.active_band)
+        for (int c = 0; c < 3; ++c) seed[static_cast<size_t>(m_triangles(j, c))] = 1;
+  };
+  mark(0, sim.positions());
+  // Predicted uncontrolled steps of the window.
+  const SimState s0 = problem.state0();
+  for (int k = 0; k < frames; ++k) {
+    sim.step(problem.input(k, Eigen::VectorXd()));
+    mark(k, sim.positions());
+  }
+  sim.restore(s0);
+  // k-ring growth.
+  std::vector<char> in = seed;
+  for (int r = 0; r < m_options.active_rings; ++r) {
+    std::vector<char> next = in;
+    for (int v = 0; v < nvtx; ++v)
+      if (in[static_cast<size_t>(v)] && static_cast<size_t>(v) < m_adjacency.size())
+        for (int w : m_adjacency[static_cast<size_t>(v)]) next[static_cast<size_t>(w)] = 1;
+    in.swap(next);
+  }
+  std::vector<char> chosen(static_cast<size_t>(layout.num_blocks), 0);
+  for (int v = 0; v < nvtx && static_cast<size_t>(v) < layout.vertex_block.size(); ++v)
+    if (in[static_cast<size_t>(v)] && layout.vertex_block[static_cast<size_t>(v)] >= 0)
+      chosen[static_cast<size_t>(layout.vertex_block[static_cast<size_t>(v)])] = 1;
+  // Blocks that carried a force in the previous frame may relax it smoothly.
+  const int bs = layout.block_size();
+  if (m_previous.size() == layout.size() && m_options.weights.temporal > 0.0)
+    for (int b = 0; b < layout.num_blocks; ++b)
+      if (m_previous.segment(b * bs, bs).squaredNorm() > 0.0) chosen[static_cast<size_t>(b)] = 1;
+  for (int b = 0; b < layout.num_blocks; ++b)
+    if (chosen[static_cast<size_t>(b)] && is_free[static_cast<size_t>(b)]) out.push_back(b);
+  return out;
+}
+
+ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
+                                             std::span<const ControlFrameInput> window,
+                                             const Eigen::VectorXd& u, GradientMode mode,
+                                             const std::vector<int>& active) {
+  const int frames = window_frames(m_options, window);
+  const bool adjoint = use_adjoint(sim, mode);
+  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
+  const int size = problem.size();
+  if (u.size() != 0 && u.size() != frames * size)
+    throw std::invalid_argument("evaluate: u has " + std::to_string(u.size()) +
+                                " entries, expected " + std::to_string(frames * size));
+  const Eigen::VectorXd uu = u.size() ? u : Eigen::VectorXd::Zero(frames * size);
+  std::vector<int> blocks = active;
+  if (blocks.empty()) {
+    const std::vector<char> is_free = free_blocks(sim, problem.layout());
+    for (int b = 0; b < problem.layout().num_blocks; ++b)
+      if (is_free[static_cast<size_t>(b)]) blocks.push_back(b);
+  }
+  problem.set_active(blocks);
+  problem.set_fixed(uu);
+  const Eigen::VectorXd z = problem.to_z(uu);
+  Eigen::VectorXd gz(z.size());
+  const auto ev = problem.evaluate(z.data(), gz.data(), adjoint, m_options.parallel);
+  sim.restore(problem.state0());
+
+  ControlEnergyEval out;
+  out.energy = ev.energy;
+  out.visibility_energy = ev.ec;
+  out.force_energy = ev.ef;
+  out.temporal_energy = ev.et;
+  out.gradient = Eigen::VectorXd::Zero(frames * size);
+  const int nv = static_cast<int>(blocks.size()) * problem.layout().block_size();
+  for (int k = 0; k < frames; ++k)
+    for (int i = 0; i < nv; ++i)
+      out.gradient[k * size + problem.component(i)] = gz[k * nv + i] / problem.scale(i);
+  return out;
+}
+
+ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
+                                                       const ControlFrameInput& frame) {
+  const auto t0 = Clock::now();
+  const ControlLayout layout = sim.control_layout();
+  ControlFrameResult r;
+  r.solver = m_options.solver;
+  r.control = Eigen::VectorXd::Zero(layout.size());
+  std::span<const ControlFrameInput> one(&frame, 1);
+  ControlOptions single = m_options;
+  single.window = 1;
+  WindowProblem problem(sim, one, 1, m_triangles, m_interior, single, m_previous);
+  sim.step(problem.input(0, Eigen::VectorXd()));
+  r.visibility_energy = problem.visibility(0, sim.positions(), nullptr);
+  std::vector<Eigen::VectorXd> u{r.control};
+  problem.force_terms(u, nullptr, &r.force_energy, &r.temporal_energy);
+  r.energy = m_options.weights.visibility * r.visibility_energy +
+             m_options.weights.force * r.force_energy +
+             m_options.weights.temporal * r.temporal_energy;
+  r.initial_energy = r.final_energy = r.energy;
+  r.physical_force = free_force_sum(sim, sim.physical_forces());
+  m_previous = r.control;
+  r.total_ms = ms_since(t0);
+  return r;
+}
+
+ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const ControlFrameInput> window,
+                                          const ControlCallbacks& callbacks) {
+  const auto t_start = Clock::now();
+  const int frames = window_frames(m_options, window);
+  const bool adjoint = use_adjoint(sim, m_options.gradient);
+  const bool hard = m_options.constraint == ConstraintMode::hard;
+  if (hard && m_options.solver == ControlSolver::lbfgs)
+    throw std::invalid_argument("the hard-constraint mode needs slsqp, mma, cobyla or ipopt");
+
+  ControlFrameResult r;
+  r.solver = m_options.solver;
+  r.adjoint = adjoint && !hard;
+
+  const std::vector<int> active = active_blocks(sim, window);
+  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
+  const int size = problem.size();
+  const int bs = problem.layout().block_size();
+  problem.set_active(active);
+  r.active_blocks = static_cast<int>(active.size());
+  const int n = problem.num_variables();
+  r.variables = n;
+
+  // Initial guess.
+  Eigen::VectorXd u0 = Eigen::VectorXd::Zero(frames * size);
+  if (m_options.initial_guess == InitialGuess::previous && m_previous.size() == size)
+    for (int k = 0; k < frames; ++k) u0.segment(k * size, size) = m_previous;
+  Eigen::VectorXd z0 = problem.to_z(u0);
+
+  Eigen::VectorXd z_best = z0;
+  if (n > 0) {
+    if (hard) {
+      // At-risk must-stay-hidden triangles of the predicted uncontrolled window.
+      std::vector<std::pair<int, int>> list;
+      const std::vector<Eigen::VectorXd> uz = problem.expand(z0.data());
+      sim.restore(problem.state0());
+      for (int k = 0; k < frames; ++k) {
+        sim.step(problem.input(k, uz[static_cast<size_t>(k)]));
+        const Eigen::VectorXd s = problem.facing(k, sim.positions());
+        for (Eigen::Index j = 0; j < s.size(); ++j)
+          if (problem.penalized(k)[static_cast<size_t>(j)] && s[j] < m_options.active_band)
+            list.emplace_back(k, static_cast<int>(j));
+      }
+      problem.set_constraints(std::move(list));
+    }
+    const bool par = m_options.parallel;
+    double best = std::numeric_limits<double>::infinity();
+    int evaluations = 0;
+    detail::SolverProblem sp;
+    sp.n = n;
+    sp.m = problem.num_constraints();
+    sp.objective = [&](const double* z, double* grad) {
+      double e;
+      if (hard) {
+        // Objective lF EF + lT ET only (analytic).
+        const std::vector<Eigen::VectorXd> u = problem.expand(z);
+        std::vector<Eigen::VectorXd> gu;
+        e = problem.force_terms(u, grad ? &gu : nullptr, nullptr, nullptr);
+        if (grad) {
+          const int nv = static_cast<int>(active.size()) * bs;
+          for (int k = 0; k < frames; ++k)
+            for (int i = 0; i < nv; ++i)
+              grad[k * nv + i] =
+                  gu[static_cast<size_t>(k)][problem.component(i)] * problem.scale(i);
+        }
+      } else {
+        e = problem.evaluate(z, grad, adjoint, par).energy;
+      }
+      ++evaluations;
+      if (!hard && e < best) {
+        best = e;
+        z_best = Eigen::Map<const Eigen::VectorXd>(z, n);
+      }
+      if (callbacks.progress) callbacks.progress({evaluations, e, best});
+      return e;
+    };
+    sp.constraints = [&](const double* z, double* c, double* jac) {
+      problem.constraints(z, c, jac, par);
+    };
+    if (callbacks.cancel) sp.cancelled = callbacks.cancel;
+    sp.lb = Eigen::VectorXd::Constant(n, -std::numeric_limits<double>::infinity());
+    sp.ub = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::infinity());
+    if (m_options.force_bound > 0.0) {
+      sp.lb.setConstant(-m_options.force_bound);
+      sp.ub.setConstant(m_options.force_bound);
+      z0 = z0.cwiseMax(sp.lb).cwiseMin(sp.ub);
+    }
+    r.initial_energy = problem.evaluate(z0.data(), nullptr, adjoint, par).energy;
+    if (!hard) {
+      best = r.initial_energy;
+      z_best = z0;
+    }
+
+    const auto t_solve = Clock::now();
+    const detail::SolverOutcome out = m_options.solver == ControlSolver::ipopt
+                                          ? detail::solve_ipopt(sp, z0, m_options)
+                                          : detail::solve_nlopt(sp, z0, m_options);
+    r.solve_ms = ms_since(t_solve);
+    r.status = out.status;
+    r.message = out.message;
+    r.iterations = out.iterations;
+    r.evaluations = evaluations;
+    r.gradient_evaluations = problem.gradients();
+    r.gradient_ms = problem.gradient_ms();
+    if (hard && out.z.size() == n) z_best = out.z;
+    r.final_energy = problem.evaluate(z_best.data(), nullptr, adjoint, par).energy;
+  } else {
+    r.message = "no control block at risk";
+    r.initial_energy = r.final_energy = problem.evaluate(z0.data(), nullptr, adjoint, false).energy;
+  }
+
+  // Commit the first frame and step.
+  const std::vector<Eigen::VectorXd> u = problem.expand(z_best.data());
+  sim.restore(problem.state0());
+  sim.step(problem.input(0, u[0]));
+  r.control = u[0];
+  r.visibility_energy = problem.visibility(0, sim.positions(), nullptr);
+  std::vector<Eigen::VectorXd> first{u[0]};
+  problem.force_terms(first, nullptr, &r.force_energy, &r.temporal_energy);
+  r.energy = m_options.weights.visibility * r.visibility_energy +
+             m_options.weights.force * r.force_energy +
+             m_options.weights.temporal * r.temporal_energy;
+  r.control_force = control_force_sum(r.control, bs);
+  r.physical_force = free_force_sum(sim, sim.physical_forces());
+  m_previous = r.control;
+  r.total_ms = ms_since(t_start);
+  return r;
+}
+
+}  // namespace pbve

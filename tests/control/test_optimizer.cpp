@@ -1,0 +1,251 @@
+// The control optimizer on the reference particle adapter (exact derivatives): adjoint versus
+// central-difference gradients, serial versus parallel probes, every solver, windows, the
+// active set, hooks and bad input.
+
+#include <cmath>
+#include <numbers>
+
+#include <gtest/gtest.h>
+
+#include "pbve/control/optimizer.hpp"
+#include "sim/particle_simulator.hpp"
+
+namespace pbve {
+namespace {
+
+constexpr int kN = 6;  // kN x kN particles
+
+// A kN x kN sheet (0.25 m wide) through (0, 0, 1), bent to w = bend * u^2 (1/metres) and
+// turned about the y axis by `angle` (radians; 0 = the sheet faces the camera with its
+// triangles wound away from it, so they are hidden). A flat sheet turned by acos(c) has
+// facing values c / |centroid|, about c.
+Vertices sheet(double angle, double bend = 0.0) {
+  Vertices x(kN * kN, 3);
+  const double c = std::cos(angle), s = std::sin(angle);
+  for (int i = 0; i < kN; ++i)
+    for (int j = 0; j < kN; ++j) {
+      const double u = 0.05 * i - 0.125, v = 0.05 * j - 0.125, w = bend * u * u;
+      x.row(i * kN + j) << c * u - s * w, v, 1.0 + s * u + c * w;
+    }
+  return x;
+}
+
+Triangles sheet_triangles() {
+  Triangles t(2 * (kN - 1) * (kN - 1), 3);
+  int f = 0;
+  for (int i = 0; i + 1 < kN; ++i)
+    for (int j = 0; j + 1 < kN; ++j) {
+      t.row(f++) << i * kN + j, (i + 1) * kN + j, i * kN + j + 1;
+      t.row(f++) << (i + 1) * kN + j, (i + 1) * kN + j + 1, i * kN + j + 1;
+    }
+  return t;
+}
+
+// Every triangle of the sheet must stay hidden; anchors stay put.
+std::vector<ControlFrameInput> frames(int count) {
+  ControlFrameInput in;
+  in.unobserved.assign(static_cast<size_t>(sheet_triangles().rows()), 1);
+  return std::vector<ControlFrameInput>(static_cast<size_t>(count), in);
+}
+
+// Nearly edge-on: facing values about 0.02, inside the default margin 0.05.
+const double kEdgeOn = std::acos(0.02);
+
+// A particle adapter that hides its derivatives (a black-box engine).
+class BlackBoxParticles : public test::ParticleSimulator {
+ public:
+  using ParticleSimulator::ParticleSimulator;
+  bool has_derivatives() const override { return false; }
+  std::unique_ptr<Simulator> clone() const override {
+    return std::make_unique<BlackBoxParticles>(*this);
+  }
+};
+
+double relative_error(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
+  return (a - b).norm() / std::max(a.norm(), b.norm());
+}
+
+TEST(ControlOptimizer, AdjointGradientMatchesCentralDifferences) {
+  for (int window : {1, 3}) {
+    test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+    ControlOptions o;
+    o.window = window;
+    o.weights = {1.0, 0.1, 0.1};
+    ControlOptimizer opt(sheet_triangles(), {}, o);
+    const auto f = frames(window);
+    // A non-zero control so that EF and ET are away from their smoothed kinks.
+    const int size = sim.control_layout().size();
+    Eigen::VectorXd u = Eigen::VectorXd::Zero(window * size);
+    for (int i = 0; i < u.size(); ++i) u[i] = 0.02 * std::sin(0.7 * i);
+    const auto adj = opt.evaluate(sim, f, u, GradientMode::adjoint);
+    const auto cen = opt.evaluate(sim, f, u, GradientMode::central);
+    EXPECT_GT(adj.visibility_energy, 0.0);
+    EXPECT_EQ(adj.energy, cen.energy);
+    EXPECT_GT(adj.gradient.norm(), 0.0);
+    EXPECT_LT(relative_error(adj.gradient, cen.gradient), 1e-4) << "window " << window;
+    // Anchored block 0 carries no gradient.
+    EXPECT_EQ(adj.gradient.head<3>().norm(), 0.0);
+  }
+}
+
+TEST(ControlOptimizer, ParallelCentralDifferencesAreBitIdenticalToSerial) {
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptions o;
+  o.window = 2;
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  const auto f = frames(2);
+  const SimState before = sim.save();
+  o.parallel = false;
+  opt.set_options(o);
+  const auto serial = opt.evaluate(sim, f, {}, GradientMode::central);
+  o.parallel = true;
+  opt.set_options(o);
+  const auto parallel = opt.evaluate(sim, f, {}, GradientMode::central);
+  ASSERT_EQ(serial.gradient.size(), parallel.gradient.size());
+  for (Eigen::Index i = 0; i < serial.gradient.size(); ++i)
+    ASSERT_EQ(serial.gradient[i], parallel.gradient[i]) << i;  // bit for bit
+  EXPECT_GT(serial.gradient.norm(), 0.0);
+  // evaluate() leaves the simulator where it was.
+  EXPECT_EQ(sim.save().values, before.values);
+}
+
+class EverySolver : public ::testing::TestWithParam<ControlSolver> {};
+
+TEST_P(EverySolver, KeepsTheSheetTurnedAway) {
+  // Uncontrolled reference.
+  test::ParticleSimulator free_sim(sheet(kEdgeOn), {0});
+  ControlOptimizer reference(sheet_triangles());
+  const auto f = frames(1);
+  const ControlFrameResult base = reference.step_uncontrolled(free_sim, f[0]);
+  ASSERT_GT(base.visibility_energy, 0.0);
+
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptions o;
+  o.solver = GetParam();
+  o.max_evaluations = GetParam() == ControlSolver::cobyla ? 2000 : 200;
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  const ControlFrameResult r = opt.step(sim, f);
+  EXPECT_NE(r.status, ControlStatus::failed) << r.message;
+  EXPECT_NE(r.status, ControlStatus::cancelled);
+  EXPECT_GT(r.evaluations, 0);
+  EXPECT_LT(r.visibility_energy, 0.05 * base.visibility_energy) << to_string(GetParam());
+  EXPECT_LT(r.final_energy, r.initial_energy);
+  EXPECT_GT(r.control_force, 0.0);
+  EXPECT_GT(r.physical_force, 0.0);
+  EXPECT_EQ(opt.previous_control(), r.control);
+  // The committed step is the one the simulator took.
+  test::ParticleSimulator replay(sheet(kEdgeOn), {0});
+  StepInput in;
+  in.control = r.control;
+  replay.step(in);
+  EXPECT_EQ(replay.positions(), sim.positions());
+}
+
+INSTANTIATE_TEST_SUITE_P(Solvers, EverySolver,
+                         ::testing::Values(ControlSolver::slsqp, ControlSolver::mma,
+                                           ControlSolver::lbfgs, ControlSolver::cobyla,
+                                           ControlSolver::ipopt),
+                         [](const auto& info) { return std::string(to_string(info.param)); });
+
+TEST(ControlOptimizer, CentralDifferencesThroughABlackBoxEngine) {
+  BlackBoxParticles sim(sheet(kEdgeOn), {0});
+  ControlOptions o;
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  EXPECT_THROW(opt.evaluate(sim, frames(1), {}, GradientMode::adjoint), std::invalid_argument);
+  const ControlFrameResult r = opt.step(sim, frames(1));
+  EXPECT_FALSE(r.adjoint);
+  EXPECT_NE(r.status, ControlStatus::failed);
+  EXPECT_GT(r.gradient_evaluations, 0);
+  EXPECT_LT(r.final_energy, r.initial_energy);
+}
+
+TEST(ControlOptimizer, WindowCommitsOnlyTheFirstFrame) {
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptions o;
+  o.window = 3;
+  o.solver = ControlSolver::lbfgs;  // SLSQP's dense subproblem is slow at 3 x 105 variables
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  const ControlFrameResult r = opt.step(sim, frames(5));
+  EXPECT_EQ(r.variables, 3 * 3 * r.active_blocks);
+  EXPECT_NE(r.status, ControlStatus::failed);
+  EXPECT_LT(r.final_energy, r.initial_energy);
+  EXPECT_EQ(r.control.size(), sim.control_layout().size());
+  // A window longer than the frames left is cut.
+  test::ParticleSimulator sim2(sheet(kEdgeOn), {0});
+  EXPECT_EQ(opt.step(sim2, frames(1)).variables, 3 * opt.active_blocks(sim2, frames(1)).size());
+}
+
+TEST(ControlOptimizer, ActiveSetTakesBlocksNearTheBoundaryAndNeverAnchors) {
+  // A bent sheet: facing values from about 0 to 0.8, so only part of it is near edge-on.
+  test::ParticleSimulator sim(sheet(0.35 * std::numbers::pi, 2.0), {0, 1});
+  ControlOptions o;
+  o.active_band = 0.2;
+  o.active_rings = 0;
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  const auto f = frames(1);
+  const std::vector<int> risk = opt.active_blocks(sim, f);
+  o.active_set = ActiveSet::all;
+  opt.set_options(o);
+  const std::vector<int> all = opt.active_blocks(sim, f);
+  EXPECT_EQ(all.size(), static_cast<size_t>(kN * kN - 2));
+  EXPECT_GT(risk.size(), 0u);
+  EXPECT_LT(risk.size(), all.size());
+  for (int b : risk) EXPECT_TRUE(b != 0 && b != 1);
+  // Growing rings only adds blocks.
+  o.active_set = ActiveSet::at_risk;
+  o.active_rings = 1;
+  opt.set_options(o);
+  const std::vector<int> grown = opt.active_blocks(sim, f);
+  EXPECT_GT(grown.size(), risk.size());
+  EXPECT_TRUE(std::includes(grown.begin(), grown.end(), risk.begin(), risk.end()));
+}
+
+TEST(ControlOptimizer, CancelHookStopsAndStillSteps) {
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  const Vertices x0 = sim.positions();
+  ControlOptimizer opt(sheet_triangles());
+  int progress_calls = 0;
+  ControlCallbacks cb;
+  cb.progress = [&](const ControlProgress& p) {
+    ++progress_calls;
+    EXPECT_LE(p.best_energy, p.energy);
+  };
+  cb.cancel = [&] { return progress_calls >= 2; };
+  const ControlFrameResult r = opt.step(sim, frames(1), cb);
+  EXPECT_EQ(r.status, ControlStatus::cancelled);
+  EXPECT_EQ(progress_calls, 2);
+  EXPECT_NE(sim.positions(), x0);
+}
+
+TEST(ControlOptimizer, HardConstraintModeForComparison) {
+  test::ParticleSimulator free_sim(sheet(kEdgeOn), {0});
+  ControlOptimizer reference(sheet_triangles());
+  const double base = reference.step_uncontrolled(free_sim, frames(1)[0]).visibility_energy;
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptions o;
+  o.constraint = ConstraintMode::hard;
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  const ControlFrameResult r = opt.step(sim, frames(1));
+  EXPECT_NE(r.status, ControlStatus::failed) << r.message;
+  EXPECT_LT(r.visibility_energy, 0.05 * base);
+  o.solver = ControlSolver::lbfgs;
+  EXPECT_THROW(opt.set_options(o), std::invalid_argument);
+}
+
+TEST(ControlOptimizer, RejectsBadInput) {
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptimizer opt(sheet_triangles());
+  EXPECT_THROW(opt.step(sim, {}), std::invalid_argument);
+  std::vector<ControlFrameInput> wrong(1);
+  wrong[0].unobserved.assign(3, 1);
+  EXPECT_THROW(opt.step(sim, wrong), std::invalid_argument);
+  ControlOptions o;
+  o.window = 0;
+  EXPECT_THROW(opt.set_options(o), std::invalid_argument);
+  EXPECT_THROW(ControlOptimizer(sheet_triangles(), {1, 0}), std::invalid_argument);
+  EXPECT_THROW(parse_control_solver("knitro"), std::invalid_argument);
+  EXPECT_EQ(parse_control_solver("ipopt"), ControlSolver::ipopt);
+}
+
+}  // namespace
+}  // namespace pbve
