@@ -40,21 +40,21 @@ ViolationMetric violation_metric(const RayScene& simulated, const Camera& camera
   }
   const bool back_faces_violate = options.back_faces_violate;
   tbb::enumerable_thread_specific<Counts> counts;
-  detail::for_each_primary(simulated.impl(), camera, options.supersample,
-                           [&](int, int, int tri, float, float, float, float ng_dot_dir) {
-                             Counts& c = counts.local();
-                             ++c.rays;
-                             if (tri < 0) return;
-                             ++c.covered;
-                             const std::uint8_t k = kind[static_cast<size_t>(tri)];
-                             // Embree's geometric normal is -(b - a) x (c - a) for the triangle (a,
-                             // b, c): a negative dot product with the ray direction means the ray
-                             // meets the back side.
-                             if (k == 2)
-                               ++c.interior;
-                             else if (k == 1 || (back_faces_violate && ng_dot_dir > 0.0f))
-                               ++c.violating;
-                           });
+  detail::for_each_primary(
+      simulated.impl(), camera, options.supersample, [&]() -> Counts& { return counts.local(); },
+      [&](Counts& c, int, int, int tri, float, float, float, float ng_dot_dir) {
+        ++c.rays;
+        if (tri < 0) return;
+        ++c.covered;
+        const std::uint8_t k = kind[static_cast<size_t>(tri)];
+        // Embree's geometric normal is (b - a) x (c - a) for the triangle (a, b, c) (checked by
+        // the tests): a positive dot product with the ray direction means the ray meets the
+        // back side.
+        if (k == 2)
+          ++c.interior;
+        else if (k == 1 || (back_faces_violate && ng_dot_dir > 0.0f))
+          ++c.violating;
+      });
   Counts total;
   for (const Counts& c : counts) {
     total.covered += c.covered;

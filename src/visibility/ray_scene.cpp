@@ -271,14 +271,16 @@ PrimaryHits RayScene::cast_primary(const Camera& camera, int supersample) const 
   hits.v.assign(n, 0.0f);
   hits.depth.assign(n, std::numeric_limits<float>::infinity());
   const int w = hits.width;
-  detail::for_each_primary(*m_impl, camera, supersample,
-                           [&](int x, int y, int tri, float u, float v, float depth, float) {
-                             const size_t i = static_cast<size_t>(y) * w + x;
-                             hits.triangle[i] = tri;
-                             hits.u[i] = u;
-                             hits.v[i] = v;
-                             hits.depth[i] = depth;
-                           });
+  int no_local = 0;
+  detail::for_each_primary(
+      *m_impl, camera, supersample, [&]() -> int& { return no_local; },
+      [&](int&, int x, int y, int tri, float u, float v, float depth, float) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        hits.triangle[i] = tri;
+        hits.u[i] = u;
+        hits.v[i] = v;
+        hits.depth[i] = depth;
+      });
   return hits;
 }
 

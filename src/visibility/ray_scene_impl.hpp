@@ -39,13 +39,14 @@ inline constexpr int primary_tile = 16;
 
 /// Casts the primary rays of the (supersample x supersample per pixel) grid of `camera` in
 /// 4 x 4 packets (rtcIntersect16, coherent context) over tiles processed in parallel (TBB).
-/// For every sample calls visit(x, y, triangle, u, v, depth, ng_dot_dir) with triangle -1 on a
-/// miss; ng_dot_dir is the dot product of Embree's geometric normal and the ray direction.
-/// `visit` runs concurrently from several threads: it may only write per-sample or
-/// thread-local state.
-template <class Visit>
+/// For every sample calls visit(local, x, y, triangle, u, v, depth, ng_dot_dir) with triangle -1
+/// on a miss; ng_dot_dir is the dot product of Embree's geometric normal and the ray direction.
+/// `local` is the reference returned by make_local(), called once per parallel task (e.g. a
+/// thread-local accumulator). `visit` runs concurrently from several threads: it may only
+/// write per-sample or task-local state.
+template <class MakeLocal, class Visit>
 void for_each_primary(const RayScene::Impl& impl, const Camera& camera, int supersample,
-                      const Visit& visit) {
+                      const MakeLocal& make_local, const Visit& visit) {
   const int width = camera.width * supersample;
   const int height = camera.height * supersample;
   if (width <= 0 || height <= 0) return;
@@ -55,6 +56,7 @@ void for_each_primary(const RayScene::Impl& impl, const Camera& camera, int supe
       tbb::blocked_range2d<int>(0, (height + primary_tile - 1) / primary_tile, 1, 0,
                                 (width + primary_tile - 1) / primary_tile, 1),
       [&](const tbb::blocked_range2d<int>& range) {
+        auto& local = make_local();
         RTCIntersectContext context;
         rtcInitIntersectContext(&context);
         context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
@@ -93,12 +95,12 @@ void for_each_primary(const RayScene::Impl& impl, const Camera& camera, int supe
                   const int x = px + (k & 3);
                   const int y = py + (k >> 2);
                   if (packet.hit.geomID[k] == RTC_INVALID_GEOMETRY_ID) {
-                    visit(x, y, -1, 0.0f, 0.0f, inf, 0.0f);
+                    visit(local, x, y, -1, 0.0f, 0.0f, inf, 0.0f);
                   } else {
                     const float ng_dot_dir = packet.hit.Ng_x[k] * packet.ray.dir_x[k] +
                                              packet.hit.Ng_y[k] * packet.ray.dir_y[k] +
                                              packet.hit.Ng_z[k] * packet.ray.dir_z[k];
-                    visit(x, y, static_cast<int>(packet.hit.primID[k]), packet.hit.u[k],
+                    visit(local, x, y, static_cast<int>(packet.hit.primID[k]), packet.hit.u[k],
                           packet.hit.v[k], packet.ray.tfar[k], ng_dot_dir);
                   }
                 }

@@ -37,7 +37,7 @@ TriangleGeometry triangle_geometry(const Vertices& vertices, const Triangles& tr
   const Eigen::Vector3d n = (g.b - g.a).cross(g.c - g.a);
   const Eigen::Vector3d centroid = (g.a + g.b + g.c) / 3.0;
   g.det = n.dot(centroid);
-  const double scale = n.norm() * centroid.norm();
+  const double scale = std::sqrt(n.squaredNorm() * centroid.squaredNorm());
   g.facing = scale > 0.0 ? g.det / scale : 0.0;
   g.in_front = g.a.z() > 0.0 && g.b.z() > 0.0 && g.c.z() > 0.0;
   g.front = g.in_front && scale > 0.0 && g.det < 0.0;
@@ -65,19 +65,18 @@ bool inside_image(const Camera& camera, const Eigen::Vector3d& p) {
 }
 
 // Shared implementation; `impl` is null for the back-face-only path.
-TriangleVisibility visibility_impl(const RayScene::Impl* impl, const Vertices& vertices,
-                                   const Triangles& triangles, const Camera& camera,
-                                   const VisibilityOptions& options) {
+void visibility_impl(const RayScene::Impl* impl, const Vertices& vertices,
+                     const Triangles& triangles, const Camera& camera,
+                     const VisibilityOptions& options, TriangleVisibility& result) {
   check_options(options);
   const Eigen::Index nf = triangles.rows();
-  TriangleVisibility result;
-  result.visible.assign(static_cast<size_t>(nf), 0);
-  result.visible_fraction = Eigen::VectorXd::Zero(nf);
-  result.projected_area_px = Eigen::VectorXd::Zero(nf);
-  result.facing = Eigen::VectorXd::Zero(nf);
+  // Every entry is written below; resizing to the same size keeps the buffers.
+  result.visible.resize(static_cast<size_t>(nf));
+  result.visible_fraction.resize(nf);
+  result.projected_area_px.resize(nf);
+  result.facing.resize(nf);
 
   const bool occlusion = options.occlusion && impl != nullptr;
-  const bool sampling = occlusion || options.clip_to_image;
   const Eigen::MatrixX3d pattern = triangle_sample_pattern(options.samples_per_triangle);
   const int ns = static_cast<int>(pattern.rows());
   const float t_max = static_cast<float>(1.0 - options.depth_tolerance);
@@ -112,14 +111,19 @@ TriangleVisibility visibility_impl(const RayScene::Impl* impl, const Vertices& v
           result.facing[j] = g.facing;
           result.projected_area_px[j] = g.area_px;
           if (!g.front) continue;
-          if (!sampling) {
+          // The projection of a triangle in front of the camera is the triangle of its projected
+          // vertices: when these are inside the (convex) image, so are all samples.
+          const bool clip =
+              options.clip_to_image && !(inside_image(camera, g.a) && inside_image(camera, g.b) &&
+                                         inside_image(camera, g.c));
+          if (!occlusion && !clip) {
             seen[static_cast<size_t>(j - range.begin())] = ns;
             continue;
           }
           for (int s = 0; s < ns; ++s) {
             const Eigen::Vector3d p =
                 pattern(s, 0) * g.a + pattern(s, 1) * g.b + pattern(s, 2) * g.c;
-            if (options.clip_to_image && !inside_image(camera, p)) continue;
+            if (clip && !inside_image(camera, p)) continue;
             if (!occlusion) {
               ++seen[static_cast<size_t>(j - range.begin())];
               continue;
@@ -149,7 +153,6 @@ TriangleVisibility visibility_impl(const RayScene::Impl* impl, const Vertices& v
         rays += local_rays;
       });
   result.rays_cast = rays.load();
-  return result;
 }
 
 }  // namespace
@@ -195,9 +198,16 @@ Eigen::VectorXd projected_areas_px(const Vertices& vertices, const Triangles& tr
   return a;
 }
 
+void compute_visibility(const RayScene& scene, const Camera& camera,
+                        const VisibilityOptions& options, TriangleVisibility& result) {
+  visibility_impl(&scene.impl(), scene.vertices(), scene.triangles(), camera, options, result);
+}
+
 TriangleVisibility compute_visibility(const RayScene& scene, const Camera& camera,
                                       const VisibilityOptions& options) {
-  return visibility_impl(&scene.impl(), scene.vertices(), scene.triangles(), camera, options);
+  TriangleVisibility result;
+  compute_visibility(scene, camera, options, result);
+  return result;
 }
 
 TriangleVisibility compute_visibility(RayScene& scene, const Vertices& vertices,
@@ -215,7 +225,9 @@ TriangleVisibility compute_visibility(const Vertices& vertices, const Triangles&
     for (int k = 0; k < 3; ++k)
       if (triangles(j, k) < 0 || triangles(j, k) >= vertices.rows())
         throw InputError("vertex index out of range", {}, 0, "triangle " + std::to_string(j));
-  return visibility_impl(nullptr, vertices, triangles, camera, options);
+  TriangleVisibility result;
+  visibility_impl(nullptr, vertices, triangles, camera, options, result);
+  return result;
 }
 
 }  // namespace pbve

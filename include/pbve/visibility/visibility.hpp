@@ -72,6 +72,11 @@ Eigen::VectorXd projected_areas_px(const Vertices& vertices, const Triangles& tr
 TriangleVisibility compute_visibility(const RayScene& scene, const Camera& camera,
                                       const VisibilityOptions& options = {});
 
+/// As above, writing into `result`: its buffers are reused, so calling this every frame on a
+/// mesh of constant size allocates nothing.
+void compute_visibility(const RayScene& scene, const Camera& camera,
+                        const VisibilityOptions& options, TriangleVisibility& result);
+
 /// Refits `scene` to `vertices` (same triangles) and computes the visibility.
 TriangleVisibility compute_visibility(RayScene& scene, const Vertices& vertices,
                                       const Camera& camera, const VisibilityOptions& options = {});
