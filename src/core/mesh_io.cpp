@@ -783,8 +783,12 @@ class PlyReader {
         } else {
           const double v = src.read(p.type, *this, e.name, i);
           if (p.name == "part") {
-            if (v < 0 || v > std::numeric_limits<int>::max() || v != std::floor(v))
-              fail("invalid part id " + std::to_string(v), line_of(src), key(e.name, i));
+            // Ids may be sparse, but not beyond one part per face (plus named parts).
+            const double max_part = static_cast<double>(e.count + m_comment_parts.size());
+            if (v < 0 || v >= max_part || v != std::floor(v))
+              fail("invalid part id " + std::to_string(static_cast<long long>(v)) +
+                       ": expected 0 to " + std::to_string(static_cast<long long>(max_part) - 1),
+                   line_of(src), key(e.name, i));
             part = static_cast<int>(v);
           } else if (p.name == "interior") {
             interior = v != 0 ? 1 : 0;

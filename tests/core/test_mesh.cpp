@@ -474,6 +474,19 @@ TEST(MeshPlyBadInput, AsciiMalformedNumberAndNan) {
   EXPECT_TRUE(contains(e2.message(), "non-finite")) << e2.what();
 }
 
+TEST(MeshPlyBadInput, AsciiPartIdOutOfRange) {
+  TempDir dir;
+  const auto path = write_text(dir / "part.ply",
+                               "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                               "property float y\nproperty float z\nelement face 1\n"
+                               "property list uchar int vertex_indices\nproperty int part\n"
+                               "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2 2000000000\n");
+  const InputError e = expect_input_error([&] { load_ply(path); });
+  EXPECT_EQ(e.line(), 14);
+  EXPECT_EQ(e.key(), "face 0");
+  EXPECT_TRUE(contains(e.message(), "2000000000")) << e.what();
+}
+
 TEST(MeshPlyBadInput, AsciiEndOfFileInsideElement) {
   TempDir dir;
   const auto path = write_text(dir / "short.ply",
