@@ -348,7 +348,7 @@ class ObjReader {
     int first = -1, prev = -1, count = 0;
     for (;;) {
       p = skip_blanks(p, end);
-      if (p == end) break;
+      if (p == end || *p == '#') break;  // end of line or a trailing comment
       const int v = parse_reference(p, end);
       if (count == 0)
         first = v;

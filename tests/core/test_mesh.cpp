@@ -140,7 +140,7 @@ TEST(MeshObj, SlashFormsAndNegativeIndices) {
                                "v 1 1 0\r\n"
                                "f -3/-3/-1 -1/-1/-1 -2/-2/-1\r\n"
                                "v +2 -1e-3 .5\r\n"
-                               "f\t-4 -3\t-1\r\n");
+                               "f\t-4 -3\t-1 # trailing comment\r\n");
   const Mesh m = load_obj(path);
   ASSERT_EQ(m.num_triangles(), 5);
   for (int f = 0; f < 3; ++f) EXPECT_EQ(m.triangles.row(f), Eigen::RowVector3i(0, 1, 2));
