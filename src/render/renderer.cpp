@@ -72,6 +72,7 @@ struct Shader {
   const PrimaryHits& guard;  // aligned mesh's first hits over guard_rect (pixel centres)
   cv::Rect guard_rect;
   const cv::Vec3f* vertex_colors;
+  const cv::Mat* extra_mask;  // CV_8U or null: input pixels not showing the object (the hand)
   cv::Vec3f interior_color;
   bool fail_safe;
   double depth_tolerance;
@@ -85,8 +86,9 @@ struct Shader {
 
   /// Bilinear sample of the input frame at the projection of `p` (a point of triangle `tri`
   /// on the aligned mesh). With the fail-safe on, taps whose pixel centre does not show that
-  /// surface (another triangle at a different depth, or the background) are dropped and the
-  /// remaining weights renormalized. Returns false when no tap is usable.
+  /// surface (another triangle at a different depth, the background, or a pixel of the extra
+  /// mask such as a hand in front of the object) are dropped and the remaining weights
+  /// renormalized. Returns false when no tap is usable.
   bool sample(int tri, const Eigen::Vector3d& p, cv::Vec3f& out) const {
     if (!(p.z() > 0.0)) return false;
     const double x = camera.fx * p.x() / p.z() + camera.cx;
@@ -110,6 +112,7 @@ struct Shader {
         const int id = guard.triangle[g];
         if (id < 0) continue;
         if (id != tri && std::abs(guard.depth[g] - z) > tol) continue;
+        if (extra_mask && extra_mask->ptr<std::uint8_t>(ty)[tx]) continue;
       }
       const cv::Vec3b& c = frame.ptr<cv::Vec3b>(ty)[tx];
       sum += w[k] * cv::Vec3f(c[0], c[1], c[2]);
@@ -527,8 +530,11 @@ void Renderer::Impl::render(const cv::Mat& input, const Vertices& aligned,
       const cv::Vec3b* row = input.ptr<cv::Vec3b>(aligned_rect.y + y) + aligned_rect.x;
       const std::int32_t* tri =
           aligned_hits.triangle.data() + static_cast<size_t>(y) * aligned_hits.width;
+      const std::uint8_t* hidden =
+          extra_mask.empty() ? nullptr
+                             : extra_mask.ptr<std::uint8_t>(aligned_rect.y + y) + aligned_rect.x;
       for (int x = 0; x < aligned_rect.width; ++x)
-        if (tri[x] >= 0) {
+        if (tri[x] >= 0 && !(hidden && hidden[x])) {
           sum += cv::Vec3d(row[x][0], row[x][1], row[x][2]);
           ++count;
         }
@@ -553,6 +559,7 @@ void Renderer::Impl::render(const cv::Mat& input, const Vertices& aligned,
                       aligned_hits,
                       aligned_rect,
                       vertex_colors.data(),
+                      extra_mask.empty() ? nullptr : &extra_mask,
                       stats.interior_color,
                       options.fail_safe,
                       options.depth_tolerance};

@@ -31,7 +31,7 @@ cv::Vec3f object_color(const Eigen::Vector3d& p) {
           static_cast<float>(128 + 100 * std::sin(23 * p.z()))};
 }
 
-/// A clip of `n` frames: a sphere (~40 px radius) moving ~120 px from left to right over a
+/// A clip of `n` frames: a sphere (~42 px radius) moving 40 px from left to right over a
 /// textured background, tumbling as it goes (the middle of its path is never uncovered), and a red
 /// "hand" rectangle that follows it.
 struct Clip {
@@ -49,7 +49,7 @@ struct Clip {
       Pose pose;
       pose.rotation =
           Eigen::AngleAxisd(0.2 * i, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
-      pose.translation = Eigen::Vector3d(-0.35 + 0.7 * i / (n - 1), 0.05 * std::sin(0.5 * i), 1.5);
+      pose.translation = Eigen::Vector3d(-0.12 + 0.24 * i / (n - 1), 0.03 * std::sin(0.5 * i), 1.5);
       poses.poses.push_back(pose);
       const test::SyntheticFrame f =
           test::render_object(mesh.triangles, mesh.vertices, pose.apply(mesh.vertices), camera,

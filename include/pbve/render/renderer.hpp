@@ -16,8 +16,9 @@
 ///     of triangle j on the aligned mesh, projected into input frame t and bilinearly sampled.
 ///     With the fail-safe on, a bilinear tap is only used when the input pixel there shows that
 ///     very surface point (the aligned mesh's first hit through the tap's pixel centre is
-///     triangle j, or lies within depth_tolerance of the point's depth): texture never comes
-///     from the background or from a part of the object in front of the point.
+///     triangle j, or lies within depth_tolerance of the point's depth) and is not in the extra
+///     mask: texture never comes from the background, from a part of the object in front of
+///     the point, or from a masked occluder such as the hand holding the object.
 ///  4. Unobserved triangles (v_j = 0), and samples whose taps were all rejected, get the
 ///     fail-safe colour: per-vertex colours sampled on the observed triangles and propagated
 ///     over the mesh graph (fill_vertex_colors), interpolated barycentrically. Interior
@@ -114,6 +115,7 @@ class Renderer {
   /// @param plate              background plate, 8-bit BGR, camera size
   /// @param extra_mask         empty, or 8-bit single channel of camera size: non-zero pixels
   ///                           (e.g. the hand holding the object) are replaced by the plate
+  ///                           and, with the fail-safe on, never used as texture
   /// @param output             the edited frame, 8-bit BGR, camera size (reallocated only when
   ///                           its size or type differ)
   /// Throws InputError on a size or type mismatch.
