@@ -252,6 +252,20 @@ struct Renderer::Impl {
   void render(const cv::Mat& input, const Vertices& aligned, const Vertices& simulated,
               const std::vector<std::uint8_t>& observed, const cv::Mat& plate,
               const cv::Mat& extra_mask, cv::Mat& output);
+  /// Largest displacement (pixels) of a vertex's projection when `aligned` is enlarged by
+  /// options.scale about its surface centroid; +infinity when a vertex is not in front of the
+  /// camera.
+  double enlargement_px(const Vertices& aligned) const {
+    const Eigen::Vector3d c = surface_centroid(aligned, triangles);
+    double reach = 0.0;
+    for (Eigen::Index i = 0; i < aligned.rows(); ++i) {
+      const Eigen::Vector3d p = aligned.row(i).transpose();
+      const Eigen::Vector3d q = c + options.scale * (p - c);
+      if (!(p.z() > 1e-9) || !(q.z() > 1e-9)) return HUGE_VAL;
+      reach = std::max(reach, (camera.project(q) - camera.project(p)).norm());
+    }
+    return reach;
+  }
   void compute_vertex_colors(const Shader& shader, const std::vector<std::uint8_t>& observed);
   void shade_pixels(const Shader& shader, Counters& counters);
   void shade_edges(const Shader& shader, Counters& counters);
@@ -400,22 +414,24 @@ void Renderer::Impl::shade_pixels(const Shader& shader, Counters& counters) {
             const float d = sim_hits.depth[i];
             bool is_edge = false;
             if (supersample) {
-              for (int dy = -1; dy <= 1 && !is_edge; ++dy)
-                for (int dx = -1; dx <= 1; ++dx) {
-                  const int nx = x + dx, ny = y + dy;
-                  int ntri = -1;
-                  float nd = 0.0f;
-                  if (nx >= 0 && ny >= 0 && nx < r.width && ny < r.height) {
-                    const size_t n = static_cast<size_t>(ny) * r.width + nx;
-                    ntri = sim_hits.triangle[n];
-                    nd = sim_hits.depth[n];
-                  }
-                  if ((ntri >= 0) != (tri >= 0) ||
-                      (tri >= 0 && std::abs(nd - d) > jump * std::min(nd, d))) {
-                    is_edge = true;
-                    break;
-                  }
+              // 4-neighbourhood: a coverage change or a depth jump between neighbours marks the
+              // pixels on both sides of a silhouette or occlusion edge.
+              constexpr int kDx[4] = {1, -1, 0, 0}, kDy[4] = {0, 0, 1, -1};
+              for (int k = 0; k < 4; ++k) {
+                const int nx = x + kDx[k], ny = y + kDy[k];
+                int ntri = -1;
+                float nd = 0.0f;
+                if (nx >= 0 && ny >= 0 && nx < r.width && ny < r.height) {
+                  const size_t n = static_cast<size_t>(ny) * r.width + nx;
+                  ntri = sim_hits.triangle[n];
+                  nd = sim_hits.depth[n];
                 }
+                if ((ntri >= 0) != (tri >= 0) ||
+                    (tri >= 0 && std::abs(nd - d) > jump * std::min(nd, d))) {
+                  is_edge = true;
+                  break;
+                }
+              }
             }
             if (is_edge) {
               edge[i] = 1;
@@ -515,7 +531,38 @@ void Renderer::Impl::render(const cv::Mat& input, const Vertices& aligned,
   cast_rect(aligned_scene, camera, aligned_rect, aligned_hits);
 
   // 2. The pixels to replace by the plate: the enlarged, dilated silhouette and the extra mask.
-  silhouette_mask(scaled_scene, aligned, camera, options.scale, options.dilate_px, removal);
+  //    Enlarging about the centroid moves vertex v's projection by d_v pixels; every pixel
+  //    centre inside the enlarged silhouette therefore lies within max d_v (+ half a pixel
+  //    diagonal, for the centre sampling of the silhouette) of a pixel centre inside the
+  //    aligned silhouette, so dilating the aligned silhouette by that radius covers the
+  //    enlarged one without casting it. The exact cast is the fallback for a mesh reaching
+  //    behind the camera.
+  {
+    const double reach = enlargement_px(aligned);
+    if (std::isfinite(reach)) {
+      removal.setTo(0);
+      for (int y = 0; y < aligned_rect.height; ++y) {
+        std::uint8_t* row = removal.ptr<std::uint8_t>(aligned_rect.y + y) + aligned_rect.x;
+        const std::int32_t* tri =
+            aligned_hits.triangle.data() + static_cast<size_t>(y) * aligned_hits.width;
+        for (int x = 0; x < aligned_rect.width; ++x) row[x] = tri[x] >= 0 ? 255 : 0;
+      }
+      const int radius = options.dilate_px + static_cast<int>(std::ceil(reach + 0.75));
+      const cv::Rect grown =
+          cv::Rect(aligned_rect.x - radius, aligned_rect.y - radius,
+                   aligned_rect.width + 2 * radius, aligned_rect.height + 2 * radius) &
+          cv::Rect(0, 0, camera.width, camera.height);
+      if (radius > 0 && grown.area() > 0) {
+        cv::Mat roi = removal(grown);
+        cv::dilate(
+            roi, roi,
+            cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1)),
+            cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+      }
+    } else {
+      silhouette_mask(scaled_scene, aligned, camera, options.scale, options.dilate_px, removal);
+    }
+  }
   if (!extra_mask.empty()) {
     cv::Mat extra = extra_mask != 0;
     cv::bitwise_or(removal, extra, removal);

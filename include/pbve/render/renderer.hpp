@@ -4,9 +4,11 @@
 /// compositing over the background plate (paper sections 3.3 and 4.1).
 ///
 /// Per output frame t:
-///  1. The pixels of the original object — the aligned mesh enlarged by RenderOptions::scale
-///     about its centroid, seen through the pixel centres, dilated by dilate_px — and the pixels
-///     of an optional extra mask are replaced by the background plate.
+///  1. The pixels of the original object — those whose centre sees the aligned mesh enlarged by
+///     RenderOptions::scale about its centroid, dilated by dilate_px — and the pixels of an
+///     optional extra mask are replaced by the background plate. (The enlarged mesh is not
+///     cast: the aligned silhouette is dilated by the largest projected displacement that the
+///     enlargement gives a vertex, plus 0.75 px, which contains the enlarged silhouette.)
 ///  2. Primary rays through the pixel centres find the first hit (triangle j, barycentrics) on
 ///     the simulated mesh. Pixels at silhouette and occlusion edges are re-sampled with
 ///     supersample x supersample sub-pixel rays: their matte is the fraction of sub-samples that
@@ -138,7 +140,8 @@ class Renderer {
   const cv::Mat& foreground() const;
   /// Coverage of the simulated object in the last frame, CV_32F in [0, 1], camera size.
   const cv::Mat& matte() const;
-  /// Pixels replaced by the plate in the last frame, CV_8U 0/255, camera size.
+  /// Pixels replaced by the plate in the last frame, CV_8U 0/255, camera size (contains
+  /// silhouette_mask(aligned, scale, dilate_px) and the extra mask).
   const cv::Mat& removal_mask() const;
   /// Counters of the last frame.
   const RenderStats& stats() const;
