@@ -94,6 +94,7 @@ TEST(Plate, TemporalMedianRecoversTheBackground) {
   const cv::Mat once = clip.uncovered_once();
   ASSERT_GT(cv::countNonZero(once), clip.camera.width * clip.camera.height / 2);
   const double db = test::psnr(plate.image, clip.background, once);
+  RecordProperty("psnr_db", std::to_string(db));
   EXPECT_GE(db, 35.0);
   // Pixels the plate saw as background are exact (median of identical values).
   EXPECT_EQ(test::mean_abs_diff(plate.image, clip.background, plate.observed), 0.0);

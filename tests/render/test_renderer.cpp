@@ -69,7 +69,9 @@ TEST(Renderer, IdentityReproducesTheInput) {
     cv::dilate(to_mask(input.coverage > 0.0f), touched, cv::Mat());
     away = touched == 0;
     ASSERT_GT(cv::countNonZero(object), 5000);
-    EXPECT_LE(test::mean_abs_diff(output, input.image, object), 2.0);
+    const double mae = test::mean_abs_diff(output, input.image, object);
+    RecordProperty("mae_object_levels", std::to_string(mae));
+    EXPECT_LE(mae, 2.0);
     EXPECT_EQ(test::mean_abs_diff(output, input.image, away), 0.0)
         << "not bit-exact off the object";
     // The one-pixel band in between is antialiased on both sides (4x4 samples in the input, 3x3
@@ -80,6 +82,40 @@ TEST(Renderer, IdentityReproducesTheInput) {
     // Taps are only rejected for sub-samples of edge pixels that lie on the object while the
     // centres of the input pixels around them do not: at most a few per edge pixel.
     EXPECT_LT(renderer.stats().rejected_samples, renderer.stats().edge_pixels);
+  }
+}
+
+// Every supersampling level keeps the identity invariant; with one sample per pixel the matte is
+// binary, with s x s samples it takes multiples of 1 / s^2.
+TEST(Renderer, SupersampleLevels) {
+  const Camera camera = test_camera();
+  const Mesh sphere = test::icosphere(3, 0.3);
+  const cv::Mat background = test::smooth_background({camera.width, camera.height});
+  const Vertices v = test::transform(sphere.vertices, rotation(0.4, {1, 1, 0}), {0.05, 0, 1.6});
+  const SyntheticFrame input =
+      test::render_object(sphere.triangles, sphere.vertices, v, camera, background, smooth_color);
+  cv::Mat object, touched;
+  cv::erode(to_mask(input.coverage == 1.0f), object, cv::Mat());
+  cv::dilate(to_mask(input.coverage > 0.0f), touched, cv::Mat());
+  for (const int s : {1, 2, 4}) {
+    RenderOptions options;
+    options.supersample = s;
+    Renderer renderer(sphere, camera, options);
+    const cv::Mat output = renderer.render(input.image, v, v, background);
+    EXPECT_LE(test::mean_abs_diff(output, input.image, object), 2.0) << s;
+    EXPECT_EQ(test::mean_abs_diff(output, input.image, touched == 0), 0.0) << s;
+    int off_grid = 0;
+    for (int y = 0; y < camera.height; ++y)
+      for (int x = 0; x < camera.width; ++x) {
+        const float m = renderer.matte().at<float>(y, x) * s * s;
+        off_grid += std::abs(m - std::round(m)) > 1e-4f;
+      }
+    EXPECT_EQ(off_grid, 0) << s;
+    if (s == 1) {
+      EXPECT_EQ(renderer.stats().edge_pixels, 0);
+    } else {
+      EXPECT_GT(renderer.stats().edge_pixels, 100);
+    }
   }
 }
 
@@ -321,6 +357,29 @@ TEST(Renderer, RejectsMismatchedInput) {
   bad.supersample = 0;
   EXPECT_THROW(Renderer(sphere, camera, bad), InputError);
   EXPECT_NO_THROW(renderer.render(frame, v, v, observed, frame));
+}
+
+// A mesh reaching behind the camera plane: projections are unbounded, so the removal mask falls
+// back to casting the enlarged mesh, and the renderer neither fails nor samples garbage.
+TEST(Renderer, MeshReachingBehindTheCamera) {
+  const Camera camera = test_camera();
+  const Mesh sphere = test::icosphere(3, 0.3);
+  const Vertices v = test::transform(sphere.vertices, Eigen::Matrix3d::Identity(), {0, 0, 0.2});
+  const cv::Mat frame = test::smooth_background({camera.width, camera.height});
+  const cv::Mat plate(camera.height, camera.width, CV_8UC3, cv::Scalar(9, 9, 9));
+  Renderer renderer(sphere, camera);
+  const cv::Mat output = renderer.render(frame, v, v, plate);
+  const cv::Mat expected = silhouette_mask(sphere.triangles, v, camera, 1.01, 2);
+  EXPECT_EQ(cv::countNonZero(renderer.removal_mask() != expected), 0);
+  EXPECT_EQ(output.size(), frame.size());
+  // The camera is inside the sphere: every pixel sees its inside (back faces, unobserved), so
+  // everything is fail-safe colour, and with nothing observed that is the object's mean colour
+  // of the input (all of it), not black.
+  EXPECT_EQ(renderer.stats().covered_pixels,
+            static_cast<std::int64_t>(camera.width) * camera.height);
+  const cv::Scalar mean = cv::mean(output);
+  const cv::Scalar input_mean = cv::mean(frame);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(mean[c], input_mean[c], 2.0);
 }
 
 // An object entirely behind the camera or outside the image leaves the frame unchanged.
