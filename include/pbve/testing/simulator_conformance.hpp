@@ -25,6 +25,7 @@
 #include <cmath>
 #include <functional>
 #include <memory>
+#include <ostream>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -54,6 +55,11 @@ struct ConformanceCase {
   double large_dt = 0.25;       ///< a large but legal step for the NaN check, s
   double vjp_tolerance = 1e-4;  ///< relative error of step_vjp() against central differences
 };
+
+/// Prints a case by its name in test output.
+inline void PrintTo(const ConformanceCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 /// gtest name generator for INSTANTIATE_TEST_SUITE_P.
 inline std::string case_name(const ::testing::TestParamInfo<ConformanceCase>& info) {

@@ -1,0 +1,37 @@
+#pragma once
+// Subcommands of the pbve command-line tool.
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace pbve::cli {
+
+/// Bad command-line usage (exit status 2).
+class UsageError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// Small argument scanner: options are --name VALUE, --flag, or -o VALUE.
+class Args {
+ public:
+  explicit Args(std::vector<std::string> args) : m_args(std::move(args)) {}
+  bool help() const;
+  /// Removes and returns the value of `name` (and its short alias), or `fallback`.
+  std::string value(const std::string& name, const std::string& alias = {},
+                    const std::string& fallback = {});
+  /// Removes `name`; true when it was present.
+  bool flag(const std::string& name);
+  /// The remaining arguments; throws UsageError for leftover options.
+  std::vector<std::string> positional() const;
+
+ private:
+  std::vector<std::string> m_args;
+};
+
+int run_edit(const std::vector<std::string>& args);
+int run_synth(const std::vector<std::string>& args);
+int run_plot(const std::vector<std::string>& args);
+
+}  // namespace pbve::cli
