@@ -290,7 +290,7 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
     const YAML::Node n = root["control"];
     r.check_map(n, "control",
                 {"enabled", "weights", "window", "solver", "gradient", "active_set",
-                 "max_iterations", "warm_start", "margin", "max_force"});
+                 "max_iterations", "warm_start", "margin", "force_bound"});
     SceneControl& c = s.control;
     for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
     if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
@@ -328,9 +328,10 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
       c.margin = r.number(n["margin"], "control.margin");
       if (c.margin < 0 || c.margin >= 1) r.fail(n["margin"], "control.margin", "must be in [0, 1)");
     }
-    if (n["max_force"]) {
-      c.max_force = r.number(n["max_force"], "control.max_force");
-      if (c.max_force < 0) r.fail(n["max_force"], "control.max_force", "must not be negative");
+    if (n["force_bound"]) {
+      c.force_bound = r.number(n["force_bound"], "control.force_bound");
+      if (c.force_bound < 0)
+        r.fail(n["force_bound"], "control.force_bound", "must not be negative");
     }
   }
 
@@ -431,7 +432,7 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "max_iterations" << YAML::Value << c.max_iterations;
   e << YAML::Key << "warm_start" << YAML::Value << c.warm_start;
   e << YAML::Key << "margin" << YAML::Value << c.margin;
-  e << YAML::Key << "max_force" << YAML::Value << c.max_force;
+  e << YAML::Key << "force_bound" << YAML::Value << c.force_bound;
   e << YAML::EndMap;
   e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "video" << YAML::Value << s.output.video.string();

@@ -76,10 +76,12 @@ struct SceneControl {
   std::string solver = "slsqp";     ///< slsqp | mma | lbfgs | cobyla | ipopt
   std::string gradient = "auto";    ///< auto | central | adjoint
   std::string active_set = "auto";  ///< auto | all
-  int max_iterations = 50;
-  bool warm_start = true;
-  double margin = 0.05;    ///< facing margin of the smooth visibility term
-  double max_force = 0.0;  ///< bound on each force component (N); 0 = none
+  int max_iterations = 200;         ///< objective evaluations (NLopt) / iterations (Ipopt)
+  bool warm_start = false;          ///< start from the previous frame's forces (else zero)
+  double margin = 0.05;             ///< facing margin of the smooth visibility term
+  /// Bound on each control force component, in multiples of its vertex's (or body's) weight
+  /// m g; 0 = unbounded.
+  double force_bound = 0.0;
   /// Key -> line of every key given under `control:` (for messages about combinations).
   std::map<std::string, int> given;
 };

@@ -1,0 +1,126 @@
+#include "pbve/engines.hpp"
+
+#include <stdexcept>
+
+#include "pbve/core/error.hpp"
+
+#ifdef PBVE_ENGINE_MASS_SPRING
+#include "pbve/mass_spring/mass_spring.hpp"
+#endif
+
+namespace pbve {
+
+namespace {
+
+[[noreturn]] void fail_key(const EngineRecipe& r, const std::string& key, int line,
+                           const std::string& message) {
+  throw InputError(message, r.scene_file, line, "key 'simulation." + key + "'");
+}
+
+#ifdef PBVE_ENGINE_MASS_SPRING
+std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
+  namespace ms = mass_spring;
+  const SceneSimulation& s = r.simulation;
+  if (s.material == "rigid")
+    fail_key(r, "material", 0,
+             "the mass_spring engine has no rigid material: use 'stiff' (nearly rigid), or "
+             "engine: bullet for rigid bodies");
+  ms::Params p = ms::Params::preset(ms::material_from_string(s.material));
+  p.gravity = s.gravity;
+  p.substeps = s.substeps;
+  auto plane = [](const ScenePlane& q) {
+    ms::Plane out;
+    out.point = q.point;
+    out.normal = q.normal;
+    out.friction = q.friction;
+    return out;
+  };
+  if (s.ground) p.planes.push_back(plane(*s.ground));
+  for (const auto& q : s.planes) p.planes.push_back(plane(q));
+  for (const auto& [key, value_line] : s.parameters) {
+    const auto [value, line] = value_line;
+    double* field = nullptr;
+    int* int_field = nullptr;
+    if (key == "density")
+      field = &p.density;
+    else if (key == "stretch_stiffness")
+      field = &p.stretch_stiffness;
+    else if (key == "shear_stiffness")
+      field = &p.shear_stiffness;
+    else if (key == "bend_stiffness")
+      field = &p.bend_stiffness;
+    else if (key == "volume_stiffness")
+      field = &p.volume_stiffness;
+    else if (key == "lattice_spacing")
+      field = &p.lattice_spacing;
+    else if (key == "damping_alpha")
+      field = &p.damping_alpha;
+    else if (key == "damping_beta")
+      field = &p.damping_beta;
+    else if (key == "contact_stiffness")
+      field = &p.contact_stiffness;
+    else if (key == "friction_velocity")
+      field = &p.friction_velocity;
+    else if (key == "newton_tolerance")
+      field = &p.newton_tolerance;
+    else if (key == "newton_iterations")
+      int_field = &p.newton_iterations;
+    if (!field && !int_field) {
+      const auto names = engine_parameters("mass_spring");
+      std::string msg = "unknown key for engine mass_spring";
+      const std::string near = nearest_key(key, names);
+      if (!near.empty()) msg += " (did you mean '" + near + "'?)";
+      msg += "; material parameters:";
+      for (const auto& n : names) msg += " " + n;
+      fail_key(r, key, line, msg);
+    }
+    if (field) *field = value;
+    if (int_field) {
+      if (value != static_cast<int>(value)) fail_key(r, key, line, "expected an integer");
+      *int_field = static_cast<int>(value);
+    }
+  }
+  try {
+    p.validate();
+    return std::make_unique<ms::MassSpringSimulator>(r.mesh, r.rest_positions, r.anchors, p);
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::invalid_argument& e) {
+    throw InputError(std::string("mass_spring: ") + e.what(), r.scene_file);
+  }
+}
+#endif
+
+}  // namespace
+
+std::vector<std::string> available_engines() {
+  std::vector<std::string> out;
+#ifdef PBVE_ENGINE_MASS_SPRING
+  out.push_back("mass_spring");
+#endif
+#ifdef PBVE_ENGINE_BULLET
+  out.push_back("bullet");
+#endif
+  return out;
+}
+
+std::vector<std::string> engine_parameters(const std::string& engine) {
+  if (engine == "mass_spring")
+    return {"density",           "stretch_stiffness", "shear_stiffness",   "bend_stiffness",
+            "volume_stiffness",  "lattice_spacing",   "damping_alpha",     "damping_beta",
+            "contact_stiffness", "friction_velocity", "newton_iterations", "newton_tolerance"};
+  return {};
+}
+
+std::unique_ptr<Simulator> make_engine(const EngineRecipe& r) {
+#ifdef PBVE_ENGINE_MASS_SPRING
+  if (r.simulation.engine == "mass_spring") return make_mass_spring(r);
+#endif
+  std::string have;
+  for (const auto& e : available_engines()) have += (have.empty() ? "" : ", ") + e;
+  fail_key(r, "engine", 0,
+           "engine '" + r.simulation.engine + "' is not built into this pbve (available: " +
+               (have.empty() ? std::string("none") : have) + ")");
+}
+
+}  // namespace pbve

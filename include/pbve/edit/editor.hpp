@@ -1,0 +1,66 @@
+#pragma once
+/// @file
+/// The editor: the per-frame driver from a scene to the edited video and its report.
+///
+/// Per frame t (paper sections 3.2-3.4 and 4.1): the simulator starts at rest in the first
+/// frame's aligned pose; the anchors follow the input poses; the triangles not observed in
+/// input frame t (back-facing or hidden, by ray casting) must stay hidden, and the control
+/// optimizer adds the forces that keep them so; the simulated mesh is textured from input
+/// frame t, composited over the background plate, written, and measured (violation_pct).
+
+#include <atomic>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "pbve/edit/engine_recipe.hpp"
+#include "pbve/edit/report.hpp"
+#include "pbve/edit/scene.hpp"
+#include "pbve/sim/simulator.hpp"
+
+namespace pbve {
+
+/// Overrides of the scene for one run (the command line's options).
+struct EditOptions {
+  std::filesystem::path video;   ///< output video; empty = the scene's output.video
+  std::filesystem::path report;  ///< report; empty = the scene's output.report
+  std::optional<bool> control;   ///< force control on or off (--no-control)
+  int first_frame = 0;           ///< first input frame to edit (--frames A:B)
+  int end_frame = -1;            ///< one past the last input frame; -1 = all
+};
+
+/// Progress of a run, reported after every frame.
+struct EditProgress {
+  int frame = 0;       ///< frames done
+  int total = 0;       ///< frames to do
+  FrameRecord record;  ///< the frame just finished
+};
+
+/// Hooks for long runs.
+struct EditCallbacks {
+  std::function<void(const EditProgress&)> progress;
+  /// Polled between frames and inside the optimizer: true = stop after the current frame,
+  /// close the video validly and write the report marked incomplete.
+  std::function<bool()> cancel;
+  /// Creates the simulator (required): pbve::make_engine() from pbve/engines.hpp for the
+  /// built-in engines, or a factory of one's own adapter.
+  std::function<std::unique_ptr<Simulator>(const EngineRecipe&)> make_simulator;
+};
+
+/// What a run produced.
+struct EditResult {
+  Report report;
+  std::filesystem::path video;
+  std::filesystem::path report_path;
+  bool complete = true;
+};
+
+/// Runs the whole edit: reads the scene's inputs, simulates, controls, renders, writes the
+/// video and the report (each through a temporary name renamed when complete). Throws
+/// InputError for bad input (before any output is written) with the file, line or key at
+/// fault; refuses to write over an input file.
+EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCallbacks& callbacks);
+
+}  // namespace pbve
