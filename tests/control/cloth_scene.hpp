@@ -5,6 +5,7 @@
 // so its front is always observed and its back never is; without control the cloth lags and
 // overshoots the turn until its back faces the camera.
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <numbers>
