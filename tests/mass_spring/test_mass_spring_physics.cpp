@@ -42,4 +42,222 @@ TEST(MassSpringPhysics, FreeFallMatchesBackwardEulerBound) {
   }
 }
 
+// A flat n x n cloth in the horizontal x-z plane (gravity +y is perpendicular to it).
+pbve::Mesh horizontal_cloth(int n, double size) {
+  pbve::Mesh m = pbve::test::grid_mesh(n, size, 0.0);
+  m.vertices.col(1).swap(m.vertices.col(2));
+  m.vertices.col(2).array() += 1.0;
+  return m;
+}
+
+TEST(MassSpringPhysics, UniformForceGivesFEqualsMA) {
+  // F_i = m_i a on every vertex of a free cloth (no gravity, no damping): springs stay at rest
+  // length, so every vertex follows backward Euler for x'' = a exactly:
+  // x(t) = a (t^2 + t h) / 2.
+  Params p = Params::preset(Material::cloth);
+  p.gravity.setZero();
+  p.damping_alpha = p.damping_beta = 0.0;
+  MassSpringSimulator sim(pbve::test::grid_mesh(4, 0.2), {}, p);
+  const Eigen::Vector3d a(0.3, -0.2, 0.1);
+  const Eigen::VectorXd mass = sim.control_layout().block_mass;
+  EXPECT_NEAR(mass.sum(), p.density * 0.2 * 0.2, 1e-12);  // lumped masses add up to rho * area
+  StepInput in;
+  in.control.resize(3 * sim.num_vertices());
+  for (int i = 0; i < sim.num_vertices(); ++i) in.control.segment<3>(3 * i) = mass[i] * a;
+  const Vertices x0 = sim.positions();
+  for (int f = 0; f < 6; ++f) sim.step(in);
+  const double t = 6 * in.dt, h = in.dt / p.substeps;
+  for (int i = 0; i < sim.num_vertices(); ++i)
+    for (int c = 0; c < 3; ++c)
+      EXPECT_NEAR(sim.positions()(i, c) - x0(i, c), 0.5 * a[c] * (t * t + t * h), 1e-10);
+}
+
+TEST(MassSpringPhysics, ForceOnOneFreeVertexGivesFEqualsMA) {
+  // A force on a single vertex over a very short step: the springs respond only after the
+  // vertex has moved, so the relative deviation from f = m a is O(k dt^2 / m) ~ 1e-4 here.
+  Params p = Params::preset(Material::cloth);
+  p.gravity.setZero();
+  p.damping_alpha = p.damping_beta = 0.0;
+  p.substeps = 1;
+  MassSpringSimulator sim(pbve::test::grid_mesh(4, 0.2), {}, p);
+  const int v = 5;
+  const double m = sim.control_layout().block_mass[v];
+  StepInput in;
+  in.dt = 1e-4;
+  in.control = Eigen::VectorXd::Zero(3 * sim.num_vertices());
+  in.control.segment<3>(3 * v) = Eigen::Vector3d(0.0, 0.0, 0.01);
+  sim.step(in);
+  const double accel = sim.velocities()(v, 2) / in.dt;
+  EXPECT_NEAR(accel, 0.01 / m, 1e-3 * 0.01 / m);
+}
+
+TEST(MassSpringPhysics, LinearMomentumConservedWithoutGravityAndDamping) {
+  // Spring forces are pairwise opposite, so the total momentum changes only by the control
+  // impulse. Per substep the Newton residual r (kg m) changes momentum by at most |sum r| / h;
+  // with the tolerance tau = 1e-12 x edge length the drift bound below is ~1e-12 kg m/s.
+  Params p = Params::preset(Material::cloth);
+  p.gravity.setZero();
+  p.damping_alpha = p.damping_beta = 0.0;
+  p.newton_tolerance = 1e-12;
+  MassSpringSimulator sim(pbve::test::grid_mesh(6, 0.3), {}, p);
+  auto momentum = [&sim] {
+    const Eigen::VectorXd m = sim.node_masses();
+    const Vertices v = sim.velocities();
+    Eigen::Vector3d P = Eigen::Vector3d::Zero();
+    for (int i = 0; i < sim.num_vertices(); ++i) P += m[i] * v.row(i).transpose();
+    return P;
+  };
+  StepInput kick;
+  kick.control = Eigen::VectorXd::Zero(3 * sim.num_vertices());
+  kick.control.segment<3>(3 * 7) = Eigen::Vector3d(0.05, 0.02, -0.03);
+  kick.control.segment<3>(3 * 30) = Eigen::Vector3d(-0.01, 0.04, 0.06);
+  sim.step(kick);
+  // Impulse of the kick: control held over dt.
+  const Eigen::Vector3d impulse =
+      kick.dt * (Eigen::Vector3d(0.05, 0.02, -0.03) + Eigen::Vector3d(-0.01, 0.04, 0.06));
+  EXPECT_LT((momentum() - impulse).norm(), 1e-12);
+  double max_stretch = 0.0;
+  for (int f = 0; f < 30; ++f) {
+    sim.step(StepInput{});
+    EXPECT_LT((momentum() - impulse).norm(), 1e-12) << "frame " << f;
+    max_stretch = std::max(max_stretch, sim.kinetic_energy());
+  }
+  EXPECT_GT(max_stretch, 0.0);  // the cloth really moved
+}
+
+TEST(MassSpringPhysics, ClothAnchoredAtTwoCornersSettles) {
+  // Horizontal cloth held at two corners falls, swings and comes to rest (Rayleigh damping and
+  // the numerical dissipation of backward Euler). Kinetic energy oscillates while it swings,
+  // so monotonic decay is checked on the envelope: the peak over each 1 s window after the
+  // first second. At rest, the static equilibrium holds and stays. Air drag is raised
+  // (alpha = 1/s) so that 12 s of simulation reach rest. Each substep is solved to
+  // tau = 1e-10 x edge length, so residual motion at rest is ~tau / h per second (~1e-9 m/s);
+  // with the default 1e-6 the Newton error alone would move nodes by ~1e-5 m/s.
+  const int n = 8;
+  Params p = Params::preset(Material::cloth);
+  p.damping_alpha = 1.0;
+  p.newton_tolerance = 1e-10;
+  MassSpringSimulator sim(horizontal_cloth(n, 0.3), {0, n - 1}, p);
+  std::vector<double> peaks;
+  double peak = 0.0;
+  for (int f = 1; f <= 30 * 12; ++f) {
+    sim.step(StepInput{});
+    peak = std::max(peak, sim.kinetic_energy());
+    if (f % 30 == 0) {
+      peaks.push_back(peak);
+      peak = 0.0;
+    }
+  }
+  EXPECT_GT(peaks[0], 1e-4);  // it really fell
+  for (size_t w = 2; w < peaks.size(); ++w) EXPECT_LT(peaks[w], peaks[w - 1]) << "window " << w;
+  EXPECT_LT(peaks.back(), 1e-6 * peaks[0]);
+  // Equilibrium: gravity and spring forces balance on every free vertex (averaged physical
+  // force ~ m * residual acceleration), and the shape no longer changes.
+  const Vertices before = sim.positions();
+  for (int f = 0; f < 30; ++f) sim.step(StepInput{});
+  EXPECT_LT((sim.positions() - before).cwiseAbs().maxCoeff(), 1e-5);
+  const Eigen::VectorXd m = sim.control_layout().block_mass;
+  for (int i = 0; i < sim.num_vertices(); ++i)
+    EXPECT_LT(sim.physical_forces().row(i).norm(), 1e-2 * m[i] * 9.81) << "vertex " << i;
+}
+
+TEST(MassSpringPhysics, StiffPresetKeepsEdgeLengthsWithinOnePercent) {
+  // A stiff ball held by one vertex falls around it as a pendulum for 1 s; every surface
+  // edge stays within 1% of its rest length (the requirement) at every frame.
+  const pbve::Mesh mesh = pbve::test::icosphere(2, 0.05, Eigen::Vector3d(0, 0, 1));
+  MassSpringSimulator sim(mesh, {0}, Params::preset(Material::stiff));
+  EXPECT_GT(sim.num_nodes(), sim.num_vertices());
+  const std::vector<double> rest = pbve::test::edge_lengths(mesh.vertices, mesh.triangles);
+  double worst = 0.0;
+  for (int f = 0; f < 30; ++f) {
+    sim.step(StepInput{});
+    const std::vector<double> now = pbve::test::edge_lengths(sim.positions(), mesh.triangles);
+    for (size_t e = 0; e < now.size(); ++e) worst = std::max(worst, std::abs(now[e] / rest[e] - 1));
+  }
+  EXPECT_LT(worst, 0.01);
+  // and it did move: the centre swung away from below-the-anchor rest position
+  EXPECT_GT((sim.positions() - mesh.vertices).rowwise().norm().maxCoeff(), 0.01);
+}
+
+TEST(MassSpringPhysics, AnchorsExactlyAtTargetsAfterEveryStep) {
+  const int n = 6;
+  MassSpringSimulator sim(horizontal_cloth(n, 0.3), {n - 1, 0, n * n - 1},
+                          Params::preset(Material::cloth));
+  EXPECT_EQ(sim.anchors(), (std::vector<int>{0, n - 1, n * n - 1}));  // sorted
+  StepInput in;
+  in.anchor_targets.resize(3, 3);
+  for (int f = 0; f < 20; ++f) {
+    for (int k = 0; k < 3; ++k)
+      in.anchor_targets.row(k) = sim.positions().row(sim.anchors()[static_cast<size_t>(k)]) +
+                                 Eigen::RowVector3d(0.01 * std::sin(f + k), 0.003 * f, -0.002);
+    sim.step(in);
+    for (int k = 0; k < 3; ++k)
+      for (int c = 0; c < 3; ++c)  // bitwise: the target is assigned at the last substep
+        EXPECT_EQ(sim.positions()(sim.anchors()[static_cast<size_t>(k)], c),
+                  in.anchor_targets(k, c));
+    EXPECT_EQ(sim.physical_forces().row(0).norm(), 0.0);
+  }
+  // Empty targets: anchors stay where they are.
+  const Vertices before = sim.positions();
+  sim.step(StepInput{});
+  for (int a : sim.anchors()) EXPECT_EQ(sim.positions().row(a), before.row(a));
+}
+
+TEST(MassSpringPhysics, ElasticBodyWobblesAndReturnsToRestShape) {
+  // A free elastic ball (no gravity) is pushed on one side for 0.1 s, deforms, wobbles and
+  // returns to its rest shape. Shape is compared by edge lengths (rigid motion removed).
+  Params p = Params::preset(Material::elastic);
+  p.gravity.setZero();
+  const pbve::Mesh mesh = pbve::test::icosphere(2, 0.05, Eigen::Vector3d(0, 0, 1));
+  MassSpringSimulator sim(mesh, {}, p);
+  ASSERT_GT(sim.num_nodes(), sim.num_vertices() + 50);  // interior lattice
+  const std::vector<double> rest = pbve::test::edge_lengths(mesh.vertices, mesh.triangles);
+  auto deformation = [&] {
+    const std::vector<double> now = pbve::test::edge_lengths(sim.positions(), mesh.triangles);
+    double worst = 0.0;
+    for (size_t e = 0; e < now.size(); ++e) worst = std::max(worst, std::abs(now[e] / rest[e] - 1));
+    return worst;
+  };
+  StepInput push;
+  push.control = Eigen::VectorXd::Zero(3 * sim.num_vertices());
+  const double total_mass = sim.node_masses().sum();
+  for (int i = 0; i < sim.num_vertices(); ++i)
+    if (mesh.vertices(i, 0) > 0.03) push.control[3 * i] = -0.2 * total_mass * 9.81 / 10;
+  double max_deformation = 0.0;
+  for (int f = 0; f < 3; ++f) {
+    sim.step(push);
+    max_deformation = std::max(max_deformation, deformation());
+  }
+  std::vector<double> history;
+  for (int f = 0; f < 90; ++f) {
+    sim.step(StepInput{});
+    history.push_back(deformation());
+    max_deformation = std::max(max_deformation, deformation());
+  }
+  EXPECT_GT(max_deformation, 0.02);  // a visible deformation
+  // It wobbles: the deformation measure rises again after first falling (an oscillation).
+  int rises = 0;
+  for (size_t f = 1; f + 1 < history.size(); ++f)
+    if (history[f] > history[f - 1] && history[f] > history[f + 1]) ++rises;
+  EXPECT_GE(rises, 2);
+  EXPECT_LT(history.back(), 0.1 * max_deformation);  // and springs back to near its rest shape
+  EXPECT_LT(history.back(), 0.005);
+}
+
+TEST(MassSpringPhysics, GroundPlaneStopsFallingCloth) {
+  // Penalty contact: at rest on the plane, each node penetrates by about m g / k_c.
+  Params p = Params::preset(Material::cloth);
+  pbve::mass_spring::Plane ground;
+  ground.point = Eigen::Vector3d(0, 0.05, 0);
+  ground.normal = Eigen::Vector3d(0, -1, 0);
+  p.planes = {ground};
+  MassSpringSimulator sim(horizontal_cloth(6, 0.3), {}, p);
+  for (int f = 0; f < 60; ++f) sim.step(StepInput{});
+  const double max_mass = sim.node_masses().maxCoeff();
+  const double y = sim.positions().col(1).maxCoeff();
+  EXPECT_GT(y, 0.05 - 0.01);                                         // it reached the plane
+  EXPECT_LT(y, 0.05 + 1.5 * max_mass * 9.81 / p.contact_stiffness);  // and did not pass it
+  EXPECT_LT(sim.velocities().cwiseAbs().maxCoeff(), 1e-3);
+}
+
 }  // namespace

@@ -6,6 +6,9 @@
 #include <stdexcept>
 #include <string>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <Eigen/LU>
 #include <Eigen/SparseCholesky>
 #include <Eigen/SparseLU>
 
@@ -65,6 +68,7 @@ struct MassSpringSimulator::Impl {
       return *this;
     }
   } solver;
+  std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
 
   // Trajectory of the last step (for step_vjp).
   struct Tape {
@@ -241,6 +245,92 @@ struct MassSpringSimulator::Impl {
     }
   }
 
+  bool use_direct() const {
+    const auto dofs = 3 * model->free_nodes.size();
+    switch (P().linear_solver) {
+      case LinearSolver::direct:
+        return true;
+      case LinearSolver::iterative:
+        return false;
+      case LinearSolver::automatic:
+        break;
+    }
+    return dofs <= static_cast<size_t>(P().direct_solver_max_dofs);
+  }
+
+  // y = J x for the symmetric J stored with both triangles: row i is column i (parallel gather).
+  void spmv(const VectorXd& xin, VectorXd& yout) const {
+    yout.resize(J.rows());
+    const int* outer = J.outerIndexPtr();
+    const int* inner = J.innerIndexPtr();
+    const double* val = J.valuePtr();
+    tbb::parallel_for(tbb::blocked_range<Eigen::Index>(0, J.cols(), 2048),
+                      [&](const tbb::blocked_range<Eigen::Index>& range) {
+                        for (Eigen::Index c = range.begin(); c != range.end(); ++c) {
+                          double acc = 0.0;
+                          for (int k = outer[c]; k < outer[c + 1]; ++k)
+                            acc += val[k] * xin[inner[k]];
+                          yout[c] = acc;
+                        }
+                      });
+  }
+
+  // 3x3 block-Jacobi preconditioner from the diagonal blocks of J.
+  void build_preconditioner() {
+    const Model& m = *model;
+    precond.resize(m.free_nodes.size());
+    const double* val = J.valuePtr();
+    for (size_t f = 0; f < m.free_nodes.size(); ++f) {
+      Matrix3d B;
+      for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 3; ++i) B(i, j) = val[m.diag_offset[f][static_cast<size_t>(j)] + i];
+      precond[f] = B.inverse();
+    }
+  }
+
+  // Preconditioned conjugate gradients on J x = b from x = 0. Stops when stop(residual) holds.
+  // Returns false on breakdown (non-positive curvature) or no convergence.
+  template <class Stop>
+  bool pcg(const VectorXd& b, VectorXd& xout, Stop stop, int max_iterations) {
+    build_preconditioner();
+    const Eigen::Index n = b.size();
+    xout = VectorXd::Zero(n);
+    VectorXd r = b, z(n), p, Ap;
+    auto apply_precond = [&](const VectorXd& in, VectorXd& out) {
+      for (size_t f = 0; f < precond.size(); ++f)
+        out.segment<3>(3 * static_cast<Eigen::Index>(f)) =
+            precond[f] * in.segment<3>(3 * static_cast<Eigen::Index>(f));
+    };
+    if (stop(r)) return true;
+    apply_precond(r, z);
+    p = z;
+    double rz = r.dot(z);
+    for (int it = 0; it < max_iterations; ++it) {
+      spmv(p, Ap);
+      const double pAp = p.dot(Ap);
+      if (!(pAp > 0.0)) return false;
+      const double a = rz / pAp;
+      xout += a * p;
+      r -= a * Ap;
+      ++stats.cg_iterations;
+      if (stop(r)) return true;
+      apply_precond(r, z);
+      const double rz_new = r.dot(z);
+      p = z + (rz_new / rz) * p;
+      rz = rz_new;
+    }
+    return false;
+  }
+
+  // Largest per-node position-like size max_i |s_i| / m_i of a residual on free rows.
+  double mass_scaled_inf(const VectorXd& s) const {
+    double out = 0.0;
+    for (size_t f = 0; f < model->free_nodes.size(); ++f)
+      out = std::max(out, s.segment<3>(3 * static_cast<Eigen::Index>(f)).lpNorm<Eigen::Infinity>() /
+                              model->mass[model->free_nodes[f]]);
+    return out;
+  }
+
   bool factorize() {
     if (!solver.analyzed) {
       solver.ldlt.analyzePattern(J);
@@ -289,9 +379,19 @@ struct MassSpringSimulator::Impl {
       residual(y, xn, vn, lag, h, r);
       const VectorXd rf = gather_free(r);
       assemble(y, lag, h, false);
-      ++stats.factorizations;
-      if (!factorize()) return -it;
-      dy_free = -solver.ldlt.solve(rf);
+      if (use_direct()) {
+        ++stats.factorizations;
+        if (!factorize()) return -it;
+        dy_free = -solver.ldlt.solve(rf);
+      } else {
+        // Inexact Newton: solve to 1e-3 of the current residual, but at least to a tenth of
+        // the Newton tolerance (mass-scaled, i.e. in metres).
+        const double target = std::max(1e-3 * mass_scaled_inf(rf), 0.1 * tol);
+        pcg(
+            rf, dy_free, [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; },
+            20 * static_cast<int>(rf.size()) + 100);
+        dy_free = -dy_free;
+      }
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
       if (!std::isfinite(step_inf)) return -it;
       double t = 1.0;
@@ -419,7 +519,14 @@ struct MassSpringSimulator::Impl {
         assemble(y, lag, h, true);
         const VectorXd Gf = gather_free(G);
         VectorXd lf;
-        if (factorize()) {
+        const double gnorm = Gf.norm();
+        const double target = P().adjoint_tolerance * gnorm;
+        const bool iterative_ok =
+            !use_direct() && pcg(
+                                 Gf, lf, [&](const VectorXd& res) { return res.norm() <= target; },
+                                 20 * static_cast<int>(Gf.size()) + 100);
+        if (iterative_ok) {
+        } else if (factorize()) {
           lf = solver.ldlt.solve(Gf);
         } else {
           lu.compute(J);

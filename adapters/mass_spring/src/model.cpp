@@ -155,7 +155,7 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
           "' needs a closed surface that encloses a volume; this mesh encloses none (use cloth)");
     const Vector3d lo = positions.colwise().minCoeff().transpose();
     const Vector3d hi = positions.colwise().maxCoeff().transpose();
-    const double target_nodes = params.material == Material::stiff ? 1500.0 : 500.0;
+    const double target_nodes = params.material == Material::stiff ? 200.0 : 150.0;
     double s = params.lattice_spacing;
     if (s == 0.0) s = std::cbrt(volume / target_nodes);
     const Vector3d extent = hi - lo, center = 0.5 * (hi + lo);

@@ -83,6 +83,9 @@ void Params::validate() const {
   if (substeps < 1) bad("substeps", "at least 1", substeps);
   if (newton_iterations < 1) bad("newton_iterations", "at least 1", newton_iterations);
   positive(newton_tolerance, "newton_tolerance");
+  positive(adjoint_tolerance, "adjoint_tolerance");
+  if (direct_solver_max_dofs < 0)
+    bad("direct_solver_max_dofs", "non-negative", direct_solver_max_dofs);
   positive(friction_velocity, "friction_velocity");
   if (!planes.empty()) positive(contact_stiffness, "contact_stiffness");
   for (size_t i = 0; i < planes.size(); ++i) {

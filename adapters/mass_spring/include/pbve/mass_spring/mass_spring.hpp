@@ -38,6 +38,13 @@ Material material_from_string(const std::string& name);
 /// The lowercase name of a material.
 std::string to_string(Material m);
 
+/// Linear solver of the Newton and adjoint systems (sparse, symmetric).
+enum class LinearSolver {
+  automatic,  ///< direct below Params::direct_solver_max_dofs free unknowns, iterative above
+  direct,     ///< sparse LDL^T (Eigen SimplicialLDLT), pattern analyzed once
+  iterative,  ///< conjugate gradients with a 3x3 block-Jacobi preconditioner (linear cost)
+};
+
 /// A collision plane: nodes are kept on the side `normal` points to (penalty contact with
 /// regularized Coulomb friction).
 struct Plane {
@@ -69,8 +76,8 @@ struct Params {
   /// Solids: Young's-modulus-like stiffness of the interior lattice and of the ties between
   /// surface vertices and the lattice, Pa. Unused for cloth.
   double volume_stiffness = 0.0;
-  /// Solids: lattice spacing, metres; 0 chooses it from the enclosed volume (about 500 interior
-  /// nodes for elastic, 1500 for stiff). Unused for cloth.
+  /// Solids: lattice spacing, metres; 0 chooses it from the enclosed volume (about 150 interior
+  /// nodes for elastic, 200 for stiff). Unused for cloth.
   double lattice_spacing = 0.0;
   /// Rayleigh mass-proportional damping alpha, 1/s (air drag-like; also damps translation).
   double damping_alpha = 0.5;
@@ -89,8 +96,16 @@ struct Params {
   /// Maximum Newton iterations per substep (>= 1).
   int newton_iterations = 30;
   /// Newton stops when the largest position update falls below newton_tolerance times the
-  /// mean rest edge length (> 0).
-  double newton_tolerance = 1e-10;
+  /// mean rest edge length (> 0). Gradients from step_vjp() are exact at the converged point,
+  /// so their relative accuracy is about this tolerance; tighten it (e.g. 1e-12) for
+  /// finite-difference comparisons.
+  double newton_tolerance = 1e-6;
+  /// Linear solver choice.
+  LinearSolver linear_solver = LinearSolver::automatic;
+  /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node).
+  int direct_solver_max_dofs = 1500;
+  /// Iterative solver: relative residual of the adjoint solves in step_vjp() (> 0).
+  double adjoint_tolerance = 1e-11;
 
   /// Defaults for a material:
   /// - cloth: 0.3 kg/m^2, stretch 2000 N/m, shear 100 N/m, bend 1e-4 N*m, alpha 0.5, beta 0.01;
@@ -107,6 +122,7 @@ struct StepStats {
   int substeps = 0;               ///< substeps taken
   int newton_iterations = 0;      ///< Newton iterations summed over substeps
   int factorizations = 0;         ///< sparse factorizations summed over substeps
+  int cg_iterations = 0;          ///< conjugate gradient iterations summed over substeps
   int max_newton_iterations = 0;  ///< largest per-substep count
   bool converged = true;          ///< every substep reached the tolerance
 };

@@ -1,0 +1,275 @@
+// Adjoint (step_vjp) gradients of pbve::mass_spring against central differences, over 1 and
+// over 5 chained steps, for cloth (with moving anchors and damping), an elastic solid (interior
+// lattice) and cloth resting on a ground plane with friction.
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <memory>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "mass_spring/meshes.hpp"
+#include "pbve/mass_spring/mass_spring.hpp"
+
+namespace {
+
+using Eigen::VectorXd;
+using pbve::SimState;
+using pbve::StepInput;
+using pbve::Vertices;
+using pbve::mass_spring::MassSpringSimulator;
+using pbve::mass_spring::Material;
+using pbve::mass_spring::Params;
+
+// L(x) = sum_i w_i . x_i + 1/2 sum_i |x_i - c|^2 (linear plus quadratic, so both the value and
+// the direction of the gradient matter).
+struct Objective {
+  Vertices w, c;
+  double value(const Vertices& x) const {
+    return (w.array() * x.array()).sum() + 0.5 * (x - c).squaredNorm();
+  }
+  Vertices gradient(const Vertices& x) const { return w + (x - c); }
+};
+
+struct Problem {
+  std::unique_ptr<MassSpringSimulator> sim;
+  std::vector<StepInput> inputs;  // one per step
+  Objective objective;
+};
+
+// Runs the steps from the simulator's current state and returns L at the end.
+double run(MassSpringSimulator& sim, const std::vector<StepInput>& inputs, const Objective& obj) {
+  for (const StepInput& in : inputs) sim.step(in);
+  return obj.value(sim.positions());
+}
+
+// Adjoint gradient w.r.t. every step's control and w.r.t. the initial state.
+void adjoint(Problem& p, std::vector<VectorXd>& du, VectorXd& ds0) {
+  MassSpringSimulator& sim = *p.sim;
+  const SimState s0 = sim.save();
+  std::vector<SimState> states;
+  for (const StepInput& in : p.inputs) {
+    states.push_back(sim.save());
+    sim.step(in);
+  }
+  VectorXd g = sim.position_cotangent(p.objective.gradient(sim.positions()));
+  du.assign(p.inputs.size(), VectorXd());
+  for (int k = static_cast<int>(p.inputs.size()) - 1; k >= 0; --k) {
+    const pbve::StepVjp r =
+        sim.step_vjp(states[static_cast<size_t>(k)], p.inputs[static_cast<size_t>(k)], g);
+    du[static_cast<size_t>(k)] = r.control;
+    g = r.state;
+  }
+  ds0 = g;
+  sim.restore(s0);
+}
+
+double relative_error(const VectorXd& a, const VectorXd& b) {
+  return (a - b).norm() / std::max(b.norm(), 1e-300);
+}
+
+// Central differences: with step eps the truncation error is O(eps^2 L''') and the noise from
+// the Newton tolerance tau (absolute position error per solve) is O(tau / eps); eps is chosen
+// so that both are far below the 1e-4 relative target.
+void check_controls(Problem& p, double eps) {
+  std::vector<VectorXd> du;
+  VectorXd ds0;
+  adjoint(p, du, ds0);
+  const SimState s0 = p.sim->save();
+  for (size_t k = 0; k < p.inputs.size(); ++k) {
+    const std::vector<int> anchors = p.sim->anchors();
+    // Central differences on 24 control entries spread over the vertices (every entry would
+    // cost 2 x #controls simulations); the adjoint is compared on the same entries.
+    std::vector<Eigen::Index> entries;
+    const Eigen::Index nc = du[k].size();
+    for (int q = 0; q < 24; ++q) {
+      const Eigen::Index j = (q * 7919 + 13) % nc;
+      if (std::find(anchors.begin(), anchors.end(), static_cast<int>(j / 3)) == anchors.end())
+        entries.push_back(j);
+    }
+    VectorXd fd(static_cast<Eigen::Index>(entries.size())), ad(fd.size());
+    for (size_t q = 0; q < entries.size(); ++q) {
+      const Eigen::Index j = entries[q];
+      auto probe = [&](double delta) {
+        std::vector<StepInput> in = p.inputs;
+        if (in[k].control.size() == 0) in[k].control = VectorXd::Zero(nc);
+        in[k].control[j] += delta;
+        p.sim->restore(s0);
+        return run(*p.sim, in, p.objective);
+      };
+      fd[static_cast<Eigen::Index>(q)] = (probe(eps) - probe(-eps)) / (2 * eps);
+      ad[static_cast<Eigen::Index>(q)] = du[k][j];
+    }
+    p.sim->restore(s0);
+    const double err = relative_error(ad, fd);
+    EXPECT_LT(err, 1e-4) << "step " << k << " of " << p.inputs.size() << ": |adj| " << ad.norm()
+                         << " |fd| " << fd.norm();
+    // Anchored blocks are ignored, so their gradient is exactly zero.
+    for (int a : anchors) EXPECT_EQ(du[k].segment<3>(3 * a).norm(), 0.0);
+  }
+}
+
+// Checks dL/d(initial state) on a few state entries (positions and velocities, free nodes,
+// anchors and, for solids, interior nodes).
+void check_state(Problem& p, const std::vector<int>& entries, double eps_x, double eps_v) {
+  std::vector<VectorXd> du;
+  VectorXd ds0;
+  adjoint(p, du, ds0);
+  const SimState s0 = p.sim->save();
+  const int n3 = p.sim->state_dim() / 2;
+  VectorXd fd(static_cast<Eigen::Index>(entries.size())), ad(fd.size());
+  for (size_t q = 0; q < entries.size(); ++q) {
+    const int j = entries[q];
+    const double eps = j < n3 ? eps_x : eps_v;
+    auto probe = [&](double delta) {
+      SimState s = s0;
+      s.values[static_cast<size_t>(j)] += delta;
+      p.sim->restore(s);
+      return run(*p.sim, p.inputs, p.objective);
+    };
+    fd[static_cast<Eigen::Index>(q)] = (probe(eps) - probe(-eps)) / (2 * eps);
+    ad[static_cast<Eigen::Index>(q)] = ds0[j];
+  }
+  p.sim->restore(s0);
+  EXPECT_LT(relative_error(ad, fd), 1e-4)
+      << "adjoint " << ad.transpose() << "\nfd " << fd.transpose();
+}
+
+Objective random_objective(const Vertices& x, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n(0.0, 1.0);
+  Objective o;
+  o.w = Vertices::NullaryExpr(x.rows(), 3, [&] { return n(rng); });
+  o.c = x + 0.05 * Vertices::NullaryExpr(x.rows(), 3, [&] { return n(rng); });
+  return o;
+}
+
+std::vector<StepInput> random_inputs(const MassSpringSimulator& sim, int steps, double force,
+                                     bool move_anchors, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n(0.0, 1.0);
+  std::vector<StepInput> out;
+  Vertices targets(static_cast<Eigen::Index>(sim.anchors().size()), 3);
+  for (size_t k = 0; k < sim.anchors().size(); ++k)
+    targets.row(static_cast<Eigen::Index>(k)) = sim.positions().row(sim.anchors()[k]);
+  for (int s = 0; s < steps; ++s) {
+    StepInput in;
+    in.dt = 1.0 / 30.0;
+    in.control = force * VectorXd::NullaryExpr(3 * sim.num_vertices(), [&] { return n(rng); });
+    if (move_anchors) {
+      targets.col(0).array() += 0.01;
+      targets.col(2).array() -= 0.005 * s;
+      in.anchor_targets = targets;
+    }
+    out.push_back(in);
+  }
+  return out;
+}
+
+Problem cloth_problem(int steps) {
+  Params p = Params::preset(Material::cloth);
+  p.newton_tolerance = 1e-12;
+  const pbve::Mesh mesh = pbve::test::grid_mesh(6, 0.3);
+  Problem pr;
+  pr.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, 5}, p);
+  // Let it swing first so springs are stretched and velocities are non-zero.
+  StepInput warm;
+  for (int i = 0; i < 3; ++i) pr.sim->step(warm);
+  pr.inputs = random_inputs(*pr.sim, steps, 0.01, true, 7);
+  pr.objective = random_objective(pr.sim->positions(), 3);
+  return pr;
+}
+
+TEST(MassSpringDerivatives, ClothControlGradientOneStep) {
+  Problem p = cloth_problem(1);
+  check_controls(p, 1e-5);
+}
+
+TEST(MassSpringDerivatives, ClothControlGradientFiveSteps) {
+  Problem p = cloth_problem(5);
+  check_controls(p, 1e-5);
+}
+
+TEST(MassSpringDerivatives, ClothStateGradientFiveSteps) {
+  Problem p = cloth_problem(5);
+  const int n3 = p.sim->state_dim() / 2;
+  // Positions of a free vertex, of an anchor (vertex 0), and velocities.
+  check_state(p, {3 * 14, 3 * 14 + 1, 3 * 20 + 2, 0, 1, n3 + 3 * 14, n3 + 3 * 30 + 1}, 1e-6, 1e-5);
+}
+
+Problem elastic_problem(int steps) {
+  Params p = Params::preset(Material::elastic);
+  p.newton_tolerance = 1e-12;
+  p.lattice_spacing = 0.03;
+  const pbve::Mesh mesh = pbve::test::icosphere(1, 0.06, Eigen::Vector3d(0, 0, 1));
+  Problem pr;
+  pr.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0}, p);
+  StepInput warm;
+  for (int i = 0; i < 2; ++i) pr.sim->step(warm);
+  pr.inputs = random_inputs(*pr.sim, steps, 0.5, true, 11);
+  pr.objective = random_objective(pr.sim->positions(), 5);
+  return pr;
+}
+
+TEST(MassSpringDerivatives, ElasticControlGradientOneAndFiveSteps) {
+  Problem p1 = elastic_problem(1);
+  ASSERT_GT(p1.sim->num_nodes(), p1.sim->num_vertices());  // the lattice is there
+  check_controls(p1, 1e-4);
+  Problem p5 = elastic_problem(5);
+  check_controls(p5, 1e-4);
+  const int n3 = p5.sim->state_dim() / 2;
+  const int interior = p5.sim->num_vertices();  // first lattice node
+  check_state(p5, {3 * 5, 3 * interior + 1, n3 + 3 * interior, n3 + 3 * 7 + 2}, 1e-6, 1e-5);
+}
+
+TEST(MassSpringDerivatives, ClothOnGroundWithFriction) {
+  // A cloth lying on a ground plane (penetrating slightly under its weight) and sliding:
+  // exercises the contact Hessian and the lagged friction terms of the adjoint.
+  Params p = Params::preset(Material::cloth);
+  p.newton_tolerance = 1e-12;
+  pbve::mass_spring::Plane ground;
+  ground.point = Eigen::Vector3d(0, 0, 1.0);
+  ground.normal = Eigen::Vector3d(0, 0, -1);  // free side towards the camera (-z)
+  ground.friction = 0.4;
+  p.planes = {ground};
+  p.gravity = Eigen::Vector3d(0, 0, 9.81);  // into the plane
+  const pbve::Mesh mesh = pbve::test::grid_mesh(5, 0.2, 1.0);
+  Problem pr;
+  pr.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{}, p);
+  StepInput push;
+  push.control = VectorXd::Zero(3 * pr.sim->num_vertices());
+  for (int i = 0; i < pr.sim->num_vertices(); ++i) push.control[3 * i] = 0.01;
+  for (int i = 0; i < 3; ++i) pr.sim->step(push);
+  ASSERT_GT(pr.sim->positions().col(2).maxCoeff(), 1.0);    // in contact
+  ASSERT_GT(pr.sim->velocities().col(0).minCoeff(), 2e-3);  // sliding (beyond the regularization)
+  pr.inputs = random_inputs(*pr.sim, 3, 0.002, false, 13);
+  for (StepInput& in : pr.inputs) in.control += push.control;
+  pr.objective = random_objective(pr.sim->positions(), 9);
+  check_controls(pr, 1e-6);
+  const int n3 = pr.sim->state_dim() / 2;
+  check_state(pr, {3 * 6, 3 * 6 + 2, n3 + 3 * 6, n3 + 3 * 12 + 1}, 1e-7, 1e-5);
+}
+
+}  // namespace
+
+namespace {
+
+TEST(MassSpringDerivatives, IterativeSolverGradientFiveSteps) {
+  // Same cloth problem with the conjugate-gradient solver: the adjoint solve is converged to a
+  // relative residual of 1e-11, far below the 1e-4 target.
+  Problem p = cloth_problem(0);
+  Params params = p.sim->params();
+  params.linear_solver = pbve::mass_spring::LinearSolver::iterative;
+  const pbve::Mesh mesh = pbve::test::grid_mesh(6, 0.3);
+  p.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, 5}, params);
+  StepInput warm;
+  for (int i = 0; i < 3; ++i) p.sim->step(warm);
+  p.inputs = random_inputs(*p.sim, 5, 0.01, true, 7);
+  check_controls(p, 1e-5);
+  EXPECT_GT(p.sim->last_stats().cg_iterations, 0);
+  EXPECT_EQ(p.sim->last_stats().factorizations, 0);
+}
+
+}  // namespace
