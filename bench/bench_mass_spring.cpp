@@ -86,3 +86,4 @@ void BM_ClothVjpReplay(benchmark::State& state) {
 BENCHMARK(BM_ClothStep)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjp)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjpReplay)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
+BENCHMARK_MAIN();

@@ -1,0 +1,61 @@
+// The shared adapter conformance suite on pbve::mass_spring: cloth, elastic and stiff.
+
+#include "mass_spring/meshes.hpp"
+#include "pbve/mass_spring/mass_spring.hpp"
+#include "pbve/testing/simulator_conformance.hpp"
+
+namespace {
+
+using pbve::mass_spring::MassSpringSimulator;
+using pbve::mass_spring::Material;
+using pbve::mass_spring::Params;
+using pbve::testing::ConformanceCase;
+
+// Newton is converged far below the suite's finite-difference step so that central
+// differences see the smooth implicit function.
+Params tight(Material m) {
+  Params p = Params::preset(m);
+  p.newton_tolerance = 1e-12;
+  p.damping_beta = 1e-4;
+  return p;
+}
+
+// f = m a probe: a displaced node feels its springs after O(k T^2 / m) and the stiffness
+// damping after O(beta k T / m). For the light cloth corner (k ~ 700 N/m, m 1.8e-4 kg) a probe
+// of T = 20 x 5e-6 s keeps both near 4% with beta = 1e-4 s (the presets' beta = 0.01 s would
+// need T ~ 1e-6 s, where per-substep displacements fall below the resolution of doubles at
+// 1 m from the camera). The cases therefore use beta = 1e-4 s.
+constexpr double fma_dt = 5e-6;
+
+ConformanceCase cloth_case() {
+  ConformanceCase c;
+  c.fma_dt = fma_dt;
+  c.name = "cloth";
+  c.make = [] {
+    return std::make_unique<MassSpringSimulator>(pbve::test::grid_mesh(6, 0.3),
+                                                 std::vector<int>{0, 5}, tight(Material::cloth));
+  };
+  return c;
+}
+
+ConformanceCase solid_case(Material m, const char* name) {
+  ConformanceCase c;
+  c.name = name;
+  c.make = [m] {
+    Params p = tight(m);
+    p.lattice_spacing = 0.03;
+    return std::make_unique<MassSpringSimulator>(
+        pbve::test::icosphere(1, 0.06, Eigen::Vector3d(0, 0, 1)), std::vector<int>{0}, p);
+  };
+  // The stiff preset's springs are ~100x stiffer: a 5x shorter probe keeps k T^2 / m and
+  // beta k T / m at the same few percent.
+  c.fma_dt = m == Material::stiff ? fma_dt / 5 : fma_dt;
+  return c;
+}
+
+INSTANTIATE_TEST_SUITE_P(MassSpring, SimulatorConformance,
+                         ::testing::Values(cloth_case(), solid_case(Material::elastic, "elastic"),
+                                           solid_case(Material::stiff, "stiff")),
+                         pbve::testing::case_name);
+
+}  // namespace
