@@ -8,7 +8,7 @@ root=$(cd "$(dirname "$0")/../.." && pwd)
 pbve=${PBVE:-$root/build/release/bin/pbve}
 out=${1:-$root/out/board_to_cloth}
 mkdir -p "$out"
-"$pbve" synth --shape board --motion swing --frames 90 "$out"
+"$pbve" synth --shape board --motion swing --frames 60 "$out"
 "$pbve" edit "$out/scene.yaml" --no-control -o "$out/unconstrained.mp4" --report "$out/unconstrained.json"
 "$pbve" edit "$out/scene.yaml" -o "$out/edited.mp4" --report "$out/report.json"
 "$pbve" plot "$out/unconstrained.json" "$out/report.json" --labels unconstrained,constrained -o "$out/plot.png"

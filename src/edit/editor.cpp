@@ -224,13 +224,31 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   // Which triangles each input frame observes (cached: windows look ahead).
   RayScene input_scene(pose[static_cast<size_t>(first)].apply(mesh.vertices), mesh.triangles);
   VisibilityOptions vis;
-  std::map<int, std::vector<std::uint8_t>> observed_cache;
-  auto observed = [&](int t) -> const std::vector<std::uint8_t>& {
-    auto it = observed_cache.find(t);
-    if (it != observed_cache.end()) return it->second;
-    if (observed_cache.size() > 64) observed_cache.erase(observed_cache.begin());
+  // Per input frame: v_j (observed) and the triangles the optimizer keeps hidden. Only
+  // triangles that face away by more than the barrier margin in the input are penalized: an
+  // unobserved triangle that is edge-on there (0 < s_j < margin) would make even the input's own
+  // rigid motion violate the margin, and one hidden only by occlusion (s_j < 0) cannot be kept
+  // hidden by turning it away. The metric still counts every unobserved triangle.
+  struct InputVisibility {
+    std::vector<std::uint8_t> observed, keep_hidden;
+  };
+  std::map<int, InputVisibility> input_cache;
+  const double margin = scene.control.margin;
+  auto input_visibility = [&](int t) -> const InputVisibility& {
+    auto it = input_cache.find(t);
+    if (it != input_cache.end()) return it->second;
+    if (input_cache.size() > 64) input_cache.erase(input_cache.begin());
     const Vertices aligned = pose[static_cast<size_t>(t)].apply(mesh.vertices);
-    return observed_cache[t] = compute_visibility(input_scene, aligned, camera, vis).visible;
+    const TriangleVisibility v = compute_visibility(input_scene, aligned, camera, vis);
+    InputVisibility out;
+    out.observed = v.visible;
+    out.keep_hidden.resize(v.visible.size());
+    for (size_t j = 0; j < v.visible.size(); ++j)
+      out.keep_hidden[j] = !v.visible[j] && v.facing(static_cast<Eigen::Index>(j)) > margin;
+    return input_cache[t] = std::move(out);
+  };
+  auto observed = [&](int t) -> const std::vector<std::uint8_t>& {
+    return input_visibility(t).observed;
   };
 
   RenderOptions render_options;
@@ -280,9 +298,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
         const int tk = t + static_cast<int>(k);
         window[k].dt = dt;
         window[k].anchor_targets = pose[static_cast<size_t>(tk)].apply(anchor_rest);
-        const auto& obs = observed(tk);
-        window[k].unobserved.resize(obs.size());
-        for (size_t j = 0; j < obs.size(); ++j) window[k].unobserved[j] = obs[j] ? 0 : 1;
+        window[k].unobserved = input_visibility(tk).keep_hidden;
       }
       ControlCallbacks ccb;
       ccb.cancel = cb.cancel;

@@ -281,7 +281,7 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     base = {0.0, -0.13, 1.3};
     material = "cloth";
     anchors = "{box: {min: [-1, -0.001, -1], max: [1, 0.001, 1]}}";
-    extra_obj = "  refine: 0.02\n";
+    extra_obj = "  refine: 0.05\n";
   } else if (o.shape == "figurine") {
     r.mesh = make_figurine(0.36, 32, 32);
     base = {0.0, 0.18, 1.3};
@@ -347,11 +347,11 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
   scene << "object:\n  mesh: object.obj\n  poses: poses.txt\n  scale: 1.01\n"
         << extra_obj << "  anchors: " << anchors << "\n";
   scene << "simulation:\n  engine: mass_spring\n  material: " << material
-        << "\n  gravity: [0, 9.81, 0]\n  substeps: 10\n"
+        << "\n  gravity: [0, 9.81, 0]\n  substeps: 3\n"
         << extra_sim;
   scene
       << "control:\n  enabled: true\n  weights: {visibility: 1.0, force: 0.001, temporal: 0.001}\n"
-         "  window: 1\n  solver: slsqp\n  gradient: auto\n";
+         "  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n";
   scene << "output: {video: edited.mp4, report: report.json}\n";
   r.scene_yaml = scene.str();
   return r;

@@ -1,0 +1,165 @@
+// End-to-end: `pbve synth` then `pbve edit` on small scenes (few frames, low resolution),
+// checking the video, the report, and bad input through the command.
+
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "pbve/core/footage.hpp"
+#include "pbve/edit/report.hpp"
+#include "support/test_util.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CmdResult {
+  int status = -1;
+  std::string output;
+};
+
+CmdResult pbve_cmd(const std::string& args) {
+  const std::string cmd = std::string(PBVE_BINARY_DIR) + "/bin/pbve " + args + " 2>&1";
+  CmdResult r;
+  FILE* p = ::popen(cmd.c_str(), "r");
+  if (!p) return r;
+  char buf[4096];
+  while (size_t n = std::fread(buf, 1, sizeof buf, p)) r.output.append(buf, n);
+  const int st = ::pclose(p);
+  r.status = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+  return r;
+}
+
+std::string read(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void write(const fs::path& p, const std::string& text) {
+  std::ofstream(p) << text;
+}
+
+/// A 160x120, 6-frame board clip with its scene.
+class EditCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const CmdResult r =
+        pbve_cmd("synth --size 160x120 --frames 6 --supersample 1 " + dir.path().string());
+    ASSERT_EQ(r.status, 0) << r.output;
+    scene = dir / "scene.yaml";
+  }
+  pbve::test::TempDir dir;
+  fs::path scene;
+};
+
+TEST_F(EditCli, UnconstrainedRunWritesVideoAndReport) {
+  const CmdResult r = pbve_cmd("edit " + scene.string() + " --no-control -o " +
+                               (dir / "u.mp4").string() + " --report " + (dir / "u.json").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("edited video:"), std::string::npos) << r.output;
+  pbve::Footage video = pbve::Footage::open_video(dir / "u.mp4");
+  EXPECT_EQ(video.frame_count(), 6);
+  EXPECT_EQ(video.size(), cv::Size(160, 120));
+  const pbve::Report rep = pbve::read_report(dir / "u.json");
+  ASSERT_EQ(rep.frames.size(), 6u);
+  EXPECT_TRUE(rep.complete);
+  EXPECT_EQ(rep.engine, "mass_spring");
+  for (size_t i = 0; i < rep.frames.size(); ++i) {
+    EXPECT_EQ(rep.frames[i].index, static_cast<int>(i));
+    EXPECT_GE(rep.frames[i].violation_pct, 0.0);
+    EXPECT_LE(rep.frames[i].violation_pct, 100.0);
+    EXPECT_GT(rep.frames[i].visible_area_px, 0.0);  // the board is in view
+    EXPECT_EQ(rep.frames[i].control_force, 0.0);
+    EXPECT_EQ(rep.frames[i].status, i == 0 ? "rest" : "off");
+  }
+  // Gravity acts on the free vertices after the first step.
+  EXPECT_GT(rep.frames[1].physical_force, 0.0);
+  EXPECT_FALSE(fs::exists(dir / "u.partial.mp4"));
+  const std::string json = read(dir / "u.json");
+  for (const char* key : {"violation_pct_mean", "violation_pct_max",
+                          "control_to_physical_force_median", "ms_per_frame_mean", "settings"})
+    EXPECT_NE(json.find(key), std::string::npos) << key;
+}
+
+TEST_F(EditCli, ControlledRunOptimizesEveryFrame) {
+  const CmdResult r = pbve_cmd("edit " + scene.string() + " --frames 0:3 --quiet");
+  ASSERT_EQ(r.status, 0) << r.output;
+  const pbve::Report rep = pbve::read_report(dir / "report.json");
+  ASSERT_EQ(rep.frames.size(), 3u);
+  for (size_t i = 1; i < rep.frames.size(); ++i) {
+    EXPECT_NE(rep.frames[i].status, "off");
+    EXPECT_NE(rep.frames[i].status, "failed");
+    EXPECT_GT(rep.frames[i].physical_force, 0.0);
+  }
+  EXPECT_EQ(pbve::Footage::open_video(dir / "edited.mp4").frame_count(), 3);
+}
+
+TEST_F(EditCli, UnknownKeyFailsBeforeWritingAnything) {
+  std::string text = read(scene);
+  text.replace(text.find("substeps:"), 9, "substep:");
+  write(scene, text);
+  const CmdResult r = pbve_cmd("edit " + scene.string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("scene.yaml:"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("simulation.substep"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "edited.mp4"));
+  EXPECT_FALSE(fs::exists(dir / "edited.partial.mp4"));
+}
+
+TEST_F(EditCli, RefusesToOverwriteAnInput) {
+  const std::string before = read(dir / "poses.txt");
+  const CmdResult r = pbve_cmd("edit " + scene.string() + " -o " + (dir / "clip.mp4").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("overwrite the input"), std::string::npos) << r.output;
+  EXPECT_EQ(pbve::Footage::open_video(dir / "clip.mp4").frame_count(), 6);
+  EXPECT_EQ(read(dir / "poses.txt"), before);
+}
+
+TEST_F(EditCli, FewerPosesThanFramesNamesBothCounts) {
+  std::string poses = read(dir / "poses.txt");
+  poses = poses.substr(0, poses.rfind('\n', poses.size() - 2) + 1);  // drop the last pose
+  write(dir / "poses.txt", poses);
+  const CmdResult r = pbve_cmd("edit " + scene.string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("5 poses"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("6 frames"), std::string::npos) << r.output;
+}
+
+TEST_F(EditCli, AnchorOutOfRangeNamesTheKey) {
+  std::string text = read(scene);
+  const auto at = text.find("anchors:");
+  text.replace(at, text.find('\n', at) - at, "anchors: {vertices: [0, 99]}");
+  write(scene, text);
+  const CmdResult r = pbve_cmd("edit " + scene.string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("object.anchors.vertices"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("99"), std::string::npos) << r.output;
+}
+
+TEST_F(EditCli, UnknownMaterialParameterSuggests) {
+  std::string text = read(scene);
+  text.replace(text.find("  substeps:"), 0, "  stretch_stifness: 500\n");
+  write(scene, text);
+  const CmdResult r = pbve_cmd("edit " + scene.string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("did you mean 'stretch_stiffness'"), std::string::npos) << r.output;
+}
+
+TEST(EditCliUsage, BadFrameRangeAndMissingSceneAreUsageErrors) {
+  EXPECT_EQ(pbve_cmd("edit").status, 2);
+  EXPECT_EQ(pbve_cmd("edit x.yaml --frames 5:2").status, 2);
+  const CmdResult r = pbve_cmd("edit /nonexistent/scene.yaml");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.output.find("/nonexistent/scene.yaml"), std::string::npos) << r.output;
+  EXPECT_EQ(pbve_cmd("edit --help").status, 0);
+  EXPECT_EQ(pbve_cmd("frobnicate").status, 2);
+}
+
+}  // namespace
