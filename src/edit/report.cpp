@@ -88,10 +88,12 @@ std::vector<std::string> faithfulness_warnings(const std::vector<FrameRecord>& f
     size_t j = i;
     while (j + 1 < frames.size() && over(frames[j + 1])) ++j;
     std::ostringstream msg;
-    msg << "control forces exceed " << pct << "% of physical forces in frame"
-        << (i == j ? " " + std::to_string(frames[i].index)
-                   : "s " + std::to_string(frames[i].index) + "-" + std::to_string(frames[j].index))
-        << ": the requested physics is not faithfully reproduced";
+    msg << "control forces exceed " << pct << "% of physical forces in frame";
+    if (i == j)
+      msg << ' ' << frames[i].index;
+    else
+      msg << "s " << frames[i].index << '-' << frames[j].index;
+    msg << ": the requested physics is not faithfully reproduced";
     out.push_back(msg.str());
     i = j + 1;
   }
