@@ -14,6 +14,7 @@
 
 #include "pbve/core/camera.hpp"
 #include "pbve/core/mesh.hpp"
+#include "pbve/edit/synth.hpp"
 #include "pbve/visibility/ray_scene.hpp"
 
 namespace pbve::test {
@@ -31,38 +32,7 @@ inline Mesh finish_mesh(Vertices v, Triangles t) {
 
 /// Icosphere of `radius` about the origin, 20 * 4^levels triangles, outward counter-clockwise.
 inline Mesh icosphere(int levels, double radius) {
-  const double g = (1.0 + std::sqrt(5.0)) / 2.0;
-  std::vector<Eigen::Vector3d> v = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0},
-                                    {0, -1, g}, {0, 1, g}, {0, -1, -g}, {0, 1, -g},
-                                    {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
-  for (auto& p : v) p.normalize();
-  std::vector<std::array<int, 3>> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
-                                       {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                       {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
-                                       {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
-  for (int level = 0; level < levels; ++level) {
-    std::map<std::pair<int, int>, int> mid;
-    auto midpoint = [&](int a, int b) {
-      const auto key = std::minmax(a, b);
-      if (auto it = mid.find(key); it != mid.end()) return it->second;
-      v.push_back((v[a] + v[b]).normalized());
-      return mid[key] = static_cast<int>(v.size()) - 1;
-    };
-    std::vector<std::array<int, 3>> next;
-    for (const auto& t : f) {
-      const int ab = midpoint(t[0], t[1]), bc = midpoint(t[1], t[2]), ca = midpoint(t[2], t[0]);
-      next.push_back({t[0], ab, ca});
-      next.push_back({t[1], bc, ab});
-      next.push_back({t[2], ca, bc});
-      next.push_back({ab, bc, ca});
-    }
-    f.swap(next);
-  }
-  Vertices vertices(static_cast<Eigen::Index>(v.size()), 3);
-  for (size_t i = 0; i < v.size(); ++i) vertices.row(i) = radius * v[i].transpose();
-  Triangles triangles(static_cast<Eigen::Index>(f.size()), 3);
-  for (size_t j = 0; j < f.size(); ++j) triangles.row(j) << f[j][0], f[j][1], f[j][2];
-  return finish_mesh(std::move(vertices), std::move(triangles));
+  return pbve::make_icosphere(radius, levels);
 }
 
 /// Torus about the z axis (major radius R, minor r), nu x nv quads, outward counter-clockwise.

@@ -15,6 +15,7 @@
 #include <Eigen/Geometry>
 
 #include "pbve/core/mesh.hpp"
+#include "pbve/edit/synth.hpp"
 
 namespace pbve::testing {
 
@@ -79,44 +80,9 @@ inline Shape make_torus(double R, double r, int nu, int nv, const Eigen::Matrix3
 /// An icosphere: the icosahedron subdivided `levels` times (20 * 4^levels triangles), vertices
 /// on the sphere of `radius` around `centre`.
 inline Shape make_icosphere(int levels, double radius, const Eigen::Vector3d& centre) {
-  const double t = (1.0 + std::sqrt(5.0)) / 2.0;
-  std::vector<Eigen::Vector3d> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0},
-                                    {0, -1, t}, {0, 1, t}, {0, -1, -t}, {0, 1, -t},
-                                    {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-  for (auto& p : v) p.normalize();
-  std::vector<std::array<int, 3>> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
-                                       {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
-                                       {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
-                                       {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
-  for (int level = 0; level < levels; ++level) {
-    std::map<std::pair<int, int>, int> midpoint;
-    auto mid = [&](int a, int b) {
-      const auto key = std::minmax(a, b);
-      auto it = midpoint.find(key);
-      if (it != midpoint.end()) return it->second;
-      v.push_back((v[a] + v[b]).normalized());
-      const int id = static_cast<int>(v.size()) - 1;
-      midpoint.emplace(key, id);
-      return id;
-    };
-    std::vector<std::array<int, 3>> g;
-    g.reserve(4 * f.size());
-    for (const auto& tri : f) {
-      const int ab = mid(tri[0], tri[1]), bc = mid(tri[1], tri[2]), ca = mid(tri[2], tri[0]);
-      g.push_back({tri[0], ab, ca});
-      g.push_back({tri[1], bc, ab});
-      g.push_back({tri[2], ca, bc});
-      g.push_back({ab, bc, ca});
-    }
-    f = std::move(g);
-  }
-  Shape shape;
-  shape.vertices.resize(static_cast<Eigen::Index>(v.size()), 3);
-  for (size_t i = 0; i < v.size(); ++i)
-    shape.vertices.row(static_cast<Eigen::Index>(i)) = (centre + radius * v[i]).transpose();
-  shape.triangles.resize(static_cast<Eigen::Index>(f.size()), 3);
-  for (size_t j = 0; j < f.size(); ++j)
-    shape.triangles.row(static_cast<Eigen::Index>(j)) << f[j][0], f[j][1], f[j][2];
+  const Mesh m = pbve::make_icosphere(radius, levels);
+  Shape shape{m.vertices, m.triangles};
+  shape.vertices.rowwise() += centre.transpose();
   return shape;
 }
 
