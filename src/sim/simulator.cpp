@@ -10,7 +10,9 @@ namespace {
 }
 }  // namespace
 
-int Simulator::state_dim() const { no_derivatives(*this, "state_dim"); }
+int Simulator::state_dim() const {
+  no_derivatives(*this, "state_dim");
+}
 
 Eigen::VectorXd Simulator::position_cotangent(const Vertices&) const {
   no_derivatives(*this, "position_cotangent");

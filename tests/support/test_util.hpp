@@ -1,10 +1,10 @@
 #pragma once
 // Helpers shared by the tests.
 
+#include <unistd.h>
 #include <filesystem>
 #include <fstream>
 #include <string>
-#include <unistd.h>
 
 #include <gtest/gtest.h>
 
@@ -18,8 +18,8 @@ class TempDir {
     std::string name = info ? std::string(info->test_suite_name()) + "_" + info->name() : "pbve";
     for (char& c : name)
       if (c == '/') c = '_';
-    m_path = std::filesystem::temp_directory_path() / ("pbve_test_" + name + "_" +
-                                                       std::to_string(::getpid()));
+    m_path = std::filesystem::temp_directory_path() /
+             ("pbve_test_" + name + "_" + std::to_string(::getpid()));
     std::filesystem::remove_all(m_path);
     std::filesystem::create_directories(m_path);
   }
@@ -35,13 +35,16 @@ class TempDir {
 };
 
 /// Writes `text` to `path` and returns the path.
-inline std::filesystem::path write_text(const std::filesystem::path& path, const std::string& text) {
+inline std::filesystem::path write_text(const std::filesystem::path& path,
+                                        const std::string& text) {
   std::ofstream out(path, std::ios::binary);
   out << text;
   return path;
 }
 
 /// Directory of checked-in test data (tests/data).
-inline std::filesystem::path data_dir() { return PBVE_TEST_DATA_DIR; }
+inline std::filesystem::path data_dir() {
+  return PBVE_TEST_DATA_DIR;
+}
 
 }  // namespace pbve::test

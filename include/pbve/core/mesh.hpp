@@ -18,9 +18,9 @@ using Triangles = Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>;
 
 /// A triangle mesh with parts (OBJ groups/objects, e.g. fracture pieces) and per-triangle flags.
 struct Mesh {
-  Vertices vertices;                    ///< #V by 3, mesh units
-  Triangles triangles;                  ///< #F by 3
-  std::vector<int> triangle_part;       ///< #F, index into part_names (0 when the file has no parts)
+  Vertices vertices;               ///< #V by 3, mesh units
+  Triangles triangles;             ///< #F by 3
+  std::vector<int> triangle_part;  ///< #F, index into part_names (0 when the file has no parts)
   std::vector<std::string> part_names;  ///< at least one entry ("default") when non-empty
   std::vector<std::uint8_t> interior;   ///< #F, 1 = interior face (not textured from the footage)
 
@@ -43,18 +43,19 @@ Mesh load_mesh(const std::filesystem::path& path);
 Mesh load_obj(const std::filesystem::path& path);
 Mesh load_ply(const std::filesystem::path& path);
 
-/// Writes OBJ (one `g` per part, interior parts keep their names) — via a temporary file renamed on success.
+/// Writes OBJ (one `g` per part, interior parts keep their names) — via a temporary file renamed on
+/// success.
 void save_obj(const Mesh& mesh, const std::filesystem::path& path);
 /// Writes binary little-endian PLY with `part` and `interior` face properties.
 void save_ply(const Mesh& mesh, const std::filesystem::path& path);
 
 /// Findings of validate_mesh() that are reported, not fatal.
 struct MeshReport {
-  int degenerate_count = 0;              ///< triangles with (near) zero area or repeated vertices
-  std::vector<int> degenerate_first;     ///< first few degenerate triangle ids (at most 8)
-  int non_manifold_edge_count = 0;       ///< edges shared by more than two triangles
+  int degenerate_count = 0;           ///< triangles with (near) zero area or repeated vertices
+  std::vector<int> degenerate_first;  ///< first few degenerate triangle ids (at most 8)
+  int non_manifold_edge_count = 0;    ///< edges shared by more than two triangles
   std::vector<std::pair<int, int>> non_manifold_first;  ///< first few such edges (vertex ids)
-  int boundary_edge_count = 0;           ///< edges used by exactly one triangle
+  int boundary_edge_count = 0;                          ///< edges used by exactly one triangle
   bool ok() const { return degenerate_count == 0 && non_manifold_edge_count == 0; }
   /// Human-readable one-paragraph summary, empty when ok().
   std::string summary() const;

@@ -31,9 +31,9 @@ enum class ControlSpace {
 /// k = 3 (force, newtons) or 6 (force in newtons, then torque in newton-metres), camera frame.
 struct ControlLayout {
   ControlSpace space = ControlSpace::vertex_force;
-  int num_blocks = 0;            ///< surface vertices (vertex_force) or bodies (body_wrench)
-  Eigen::VectorXd block_mass;    ///< kg: mass of the vertex / body each block acts on
-  std::vector<int> vertex_block; ///< per surface vertex: the block that moves it (-1: none)
+  int num_blocks = 0;             ///< surface vertices (vertex_force) or bodies (body_wrench)
+  Eigen::VectorXd block_mass;     ///< kg: mass of the vertex / body each block acts on
+  std::vector<int> vertex_block;  ///< per surface vertex: the block that moves it (-1: none)
 
   int block_size() const { return space == ControlSpace::vertex_force ? 3 : 6; }
   int size() const { return num_blocks * block_size(); }
@@ -48,8 +48,8 @@ struct SimState {
 
 /// Input of one step (one frame interval; substeps are the adapter's business).
 struct StepInput {
-  double dt = 1.0 / 30.0;     ///< seconds
-  Eigen::VectorXd control;    ///< size ControlLayout::size(), or empty for zero control
+  double dt = 1.0 / 30.0;   ///< seconds
+  Eigen::VectorXd control;  ///< size ControlLayout::size(), or empty for zero control
   /// Positions of the anchors (#anchors by 3, order of Simulator::anchors()) at the end of
   /// the step, camera frame; linearly interpolated from their current positions across
   /// substeps. Empty: anchors stay where they are.
