@@ -15,6 +15,35 @@ namespace pbve {
 
 namespace {
 
+/// Runs probe(sim, q) for q = 0 .. count-1: on `base` itself in order, or in parallel over a
+/// pool of clones of `base` (each probe restores the state it needs, so which simulator runs
+/// which probe does not change its result).
+template <class Probe>
+void for_each_probe(Simulator& base, int count, bool parallel, const Probe& probe) {
+  if (!parallel) {
+    for (int q = 0; q < count; ++q) probe(base, q);
+    return;
+  }
+  std::mutex mutex;
+  std::vector<std::unique_ptr<Simulator>> owned;
+  std::vector<Simulator*> free;
+  tbb::parallel_for(0, count, [&](int q) {
+    Simulator* s = nullptr;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (free.empty()) {
+        owned.push_back(base.clone());
+        free.push_back(owned.back().get());
+      }
+      s = free.back();
+      free.pop_back();
+    }
+    probe(*s, q);
+    std::lock_guard<std::mutex> lock(mutex);
+    free.push_back(s);
+  });
+}
+
 constexpr double kStandardGravity = 9.80665;  // m/s^2
 
 using Clock = std::chrono::steady_clock;
@@ -231,28 +260,7 @@ class WindowProblem {
             probe(sim, states[static_cast<size_t>(k)], k, u, c, q % 2 == 0 ? delta : -delta);
         (q % 2 == 0 ? ep : em)[static_cast<size_t>(i)] = e;
       };
-      if (parallel) {
-        std::mutex mutex;
-        std::vector<std::unique_ptr<Simulator>> owned;
-        std::vector<Simulator*> free;
-        tbb::parallel_for(0, 2 * n, [&](int q) {
-          Simulator* s = nullptr;
-          {
-            std::lock_guard<std::mutex> lock(mutex);
-            if (free.empty()) {
-              owned.push_back(m_sim.clone());
-              free.push_back(owned.back().get());
-            }
-            s = free.back();
-            free.pop_back();
-          }
-          run(*s, q);
-          std::lock_guard<std::mutex> lock(mutex);
-          free.push_back(s);
-        });
-      } else {
-        for (int q = 0; q < 2 * n; ++q) run(m_sim, q);
-      }
+      for_each_probe(m_sim, 2 * n, parallel, run);
       for (int i = 0; i < n; ++i) {
         const int k = i / nv;
         const double dec = (ep[static_cast<size_t>(i)] - em[static_cast<size_t>(i)]) / (2.0 * h);
@@ -307,28 +315,7 @@ class WindowProblem {
         if (m_constraints[static_cast<size_t>(j)].first < k) v[j] = c0[j];
       (q % 2 == 0 ? cp : cm)[static_cast<size_t>(i)] = std::move(v);
     };
-    if (parallel) {
-      std::mutex mutex;
-      std::vector<std::unique_ptr<Simulator>> owned;
-      std::vector<Simulator*> free;
-      tbb::parallel_for(0, 2 * n, [&](int q) {
-        Simulator* s = nullptr;
-        {
-          std::lock_guard<std::mutex> lock(mutex);
-          if (free.empty()) {
-            owned.push_back(m_sim.clone());
-            free.push_back(owned.back().get());
-          }
-          s = free.back();
-          free.pop_back();
-        }
-        run(*s, q);
-        std::lock_guard<std::mutex> lock(mutex);
-        free.push_back(s);
-      });
-    } else {
-      for (int q = 0; q < 2 * n; ++q) run(m_sim, q);
-    }
+    for_each_probe(m_sim, 2 * n, parallel, run);
     for (int j = 0; j < m; ++j)
       for (int i = 0; i < n; ++i)
         jac[j * n + i] =
