@@ -4,15 +4,5 @@
 # gravity, anchored at its feet. The background behind it is inpainted.
 # Usage: examples/single_picture/run.sh [OUT_DIR]   (after building the release preset)
 set -euo pipefail
-root=$(cd "$(dirname "$0")/../.." && pwd)
-pbve=${PBVE:-$root/build/release/bin/pbve}
-out=${1:-$root/out/single_picture}
-mkdir -p "$out"
-"$pbve" synth --shape figurine --image --frames 90 "$out"
-"$pbve" edit "$out/scene.yaml" --no-control -o "$out/unconstrained.mp4" --report "$out/unconstrained.json"
-"$pbve" edit "$out/scene.yaml" -o "$out/edited.mp4" --report "$out/report.json"
-"$pbve" plot "$out/unconstrained.json" "$out/report.json" --labels unconstrained,constrained -o "$out/plot.png"
-echo
-echo "input picture: $out/picture.png"
-echo "edited video:  $out/edited.mp4"
-echo "report:        $out/report.json"
+source "$(dirname "$0")/../common.sh"
+run_example "${1:-$root/out/single_picture}" --shape figurine --image --frames 90
