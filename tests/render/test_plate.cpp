@@ -16,13 +16,7 @@ namespace pbve {
 namespace {
 
 Camera small_camera() {
-  Camera c;
-  c.fx = c.fy = 250.0;
-  c.cx = 159.5;
-  c.cy = 119.5;
-  c.width = 320;
-  c.height = 240;
-  return c;
+  return test::centred_camera(320, 240, 250.0);
 }
 
 cv::Vec3f object_color(const Eigen::Vector3d& p) {

@@ -10,6 +10,7 @@
 #include "pbve/core/error.hpp"
 #include "pbve/visibility/visibility.hpp"
 #include "render/render_scenes.hpp"
+#include "support/test_util.hpp"
 
 namespace pbve {
 namespace {
@@ -17,13 +18,7 @@ namespace {
 using test::SyntheticFrame;
 
 Camera test_camera() {
-  Camera c;
-  c.fx = c.fy = 300.0;
-  c.cx = 159.5;
-  c.cy = 119.5;
-  c.width = 320;
-  c.height = 240;
-  return c;
+  return test::centred_camera(320, 240, 300.0);
 }
 
 Eigen::Matrix3d rotation(double angle, const Eigen::Vector3d& axis) {

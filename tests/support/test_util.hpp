@@ -8,6 +8,8 @@
 
 #include <gtest/gtest.h>
 
+#include "pbve/core/camera.hpp"
+
 namespace pbve::test {
 
 /// A fresh empty directory for the running test (removed at destruction).
@@ -40,6 +42,18 @@ inline std::filesystem::path write_text(const std::filesystem::path& path,
   std::ofstream out(path, std::ios::binary);
   out << text;
   return path;
+}
+
+/// A pinhole camera of `width` x `height` pixels, focal length `f` pixels, principal point at
+/// the image centre.
+inline Camera centred_camera(int width, int height, double f) {
+  Camera c;
+  c.fx = c.fy = f;
+  c.cx = (width - 1) / 2.0;
+  c.cy = (height - 1) / 2.0;
+  c.width = width;
+  c.height = height;
+  return c;
 }
 
 /// Directory of checked-in test data (tests/data).

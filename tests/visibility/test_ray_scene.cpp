@@ -7,6 +7,7 @@
 #include "pbve/core/error.hpp"
 #include "pbve/testing/shapes.hpp"
 #include "pbve/visibility/ray_scene.hpp"
+#include "support/test_util.hpp"
 
 namespace pbve {
 namespace {
@@ -14,13 +15,7 @@ namespace {
 using testing::make_plate;
 
 Camera small_camera() {
-  Camera camera;
-  camera.fx = camera.fy = 200.0;
-  camera.cx = 79.5;
-  camera.cy = 59.5;
-  camera.width = 160;
-  camera.height = 120;
-  return camera;
+  return test::centred_camera(160, 120, 200.0);
 }
 
 TEST(RayScene, EmptySceneMissesEverything) {
