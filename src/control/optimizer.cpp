@@ -377,12 +377,12 @@ std::vector<char> free_blocks(const Simulator& sim, const ControlLayout& layout)
   return is_free;
 }
 
-double free_force_sum(const Simulator& sim, const Vertices& forces) {
+double free_force_sum(const Simulator& sim, const Eigen::VectorXd& magnitudes) {
   std::vector<char> anchored(static_cast<size_t>(sim.num_vertices()), 0);
   for (int a : sim.anchors()) anchored[static_cast<size_t>(a)] = 1;
   double sum = 0.0;
-  for (Eigen::Index v = 0; v < forces.rows(); ++v)
-    if (!anchored[static_cast<size_t>(v)]) sum += forces.row(v).norm();
+  for (Eigen::Index v = 0; v < magnitudes.size(); ++v)
+    if (!anchored[static_cast<size_t>(v)]) sum += magnitudes[v];
   return sum;
 }
 
@@ -567,7 +567,7 @@ ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
              m_options.weights.force * r.force_energy +
              m_options.weights.temporal * r.temporal_energy;
   r.initial_energy = r.final_energy = r.energy;
-  r.physical_force = free_force_sum(sim, sim.physical_forces());
+  r.physical_force = free_force_sum(sim, sim.physical_force_magnitudes());
   m_previous = r.control;
   r.total_ms = ms_since(t0);
   return r;
@@ -695,7 +695,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
              m_options.weights.force * r.force_energy +
              m_options.weights.temporal * r.temporal_energy;
   r.control_force = control_force_sum(r.control, bs);
-  r.physical_force = free_force_sum(sim, sim.physical_forces());
+  r.physical_force = free_force_sum(sim, sim.physical_force_magnitudes());
   m_previous = r.control;
   r.total_ms = ms_since(t_start);
   return r;

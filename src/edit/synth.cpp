@@ -280,7 +280,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     r.mesh = make_box_mesh(0.40, 0.30, 0.01);
     base = {0.0, -0.13, 1.3};
     material = "cloth";
-    anchors = "{box: {min: [-1, -0.001, -1], max: [1, 0.001, 1]}}";
+    // The hand holds the middle 10 cm of the top edge.
+    anchors = "{box: {min: [-0.05, -0.001, -1], max: [0.05, 0.001, 1]}}";
     extra_obj = "  refine: 0.05\n";
   } else if (o.shape == "figurine") {
     r.mesh = make_figurine(0.36, 32, 32);
@@ -304,8 +305,9 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
     Eigen::Vector3d p = base;
     if (o.motion == "swing") {
-      // Yaw about the vertical axis through the held edge, and a sideways sway.
-      const double yaw = (50.0 * pi / 180.0) * ramp(t) * std::sin(2 * pi * 0.6 * t);
+      // Yaw (up to 80 degrees, nearly edge-on) about the vertical axis through the middle of
+      // the held edge, and a sideways sway.
+      const double yaw = (80.0 * pi / 180.0) * ramp(t) * std::sin(2 * pi * 0.9 * t);
       R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
       p.x() += 0.10 * ramp(t) * std::sin(2 * pi * 0.3 * t);
     } else if (o.motion == "wave") {

@@ -49,6 +49,10 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
       field = &p.shear_stiffness;
     else if (key == "bend_stiffness")
       field = &p.bend_stiffness;
+    else if (key == "layer_stiffness")
+      field = &p.layer_stiffness;
+    else if (key == "layer_distance")
+      field = &p.layer_distance;
     else if (key == "volume_stiffness")
       field = &p.volume_stiffness;
     else if (key == "lattice_spacing")
@@ -106,9 +110,10 @@ std::vector<std::string> available_engines() {
 
 std::vector<std::string> engine_parameters(const std::string& engine) {
   if (engine == "mass_spring")
-    return {"density",           "stretch_stiffness", "shear_stiffness",   "bend_stiffness",
-            "volume_stiffness",  "lattice_spacing",   "damping_alpha",     "damping_beta",
-            "contact_stiffness", "friction_velocity", "newton_iterations", "newton_tolerance"};
+    return {"density",          "stretch_stiffness", "shear_stiffness",   "bend_stiffness",
+            "layer_stiffness",  "layer_distance",    "volume_stiffness",  "lattice_spacing",
+            "damping_alpha",    "damping_beta",      "contact_stiffness", "friction_velocity",
+            "newton_iterations", "newton_tolerance"};
   return {};
 }
 

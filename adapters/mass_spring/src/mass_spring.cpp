@@ -52,23 +52,54 @@ struct Lag {
 struct MassSpringSimulator::Impl {
   std::shared_ptr<const Model> model;
   VectorXd x, v;  // 3N positions (m) and velocities (m/s)
-  Vertices phys;  // #V by 3, last step's averaged physical forces
+  Vertices phys;              // #V by 3, last step's averaged physical forces
+  Eigen::VectorXd phys_norm;  // #V, last step's averaged |m g| + |other physical forces|
   StepStats stats;
 
   Eigen::SparseMatrix<double> J;
-  // Eigen's solvers are not copyable: a copy starts without a factorization and analyzes the
-  // (shared) pattern again on first use.
+  // A sparse LDL^T factorization. Eigen's solvers are not copyable: a copy starts empty and
+  // analyzes the (shared) pattern again on first use.
   struct Solver {
     Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
     bool analyzed = false;
+    bool valid = false;  // holds the factorization of the matrix `key` describes
+    VectorXd key;
     Solver() = default;
     Solver(const Solver&) {}
     Solver& operator=(const Solver&) {
-      analyzed = false;
+      analyzed = valid = false;
       return *this;
     }
-  } solver;
+  };
+  // Direct mode keeps two factorizations. `base` is of the first Newton matrix of a step,
+  // which depends only on the start state, the anchor targets and dt (not on the control): it
+  // is kept for the next step() or step_vjp() from the same start (an optimizer evaluates many
+  // controls from one state), and preconditions conjugate gradients for the later Newton
+  // iterations, substeps and adjoint solves. `work` is refactorized within a call when those
+  // stall. Every result is a function of the call's inputs alone (bit-exact replay).
+  Solver base, work;
+  Solver* active = nullptr;  // the preconditioner of the current call, if any
+  bool in_adjoint = false;   // step_vjp() running: never write `base`
+  // A solve that needed more CG iterations than this (each about one triangular solve pair,
+  // against about 7 for a factorization) makes the next one factorize anew.
+  static constexpr int refactor_iterations = 6;
+  static constexpr int max_reuse_iterations = 25;
+  int last_reuse_iterations = 0;
   std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
+
+  // Start of a step() or step_vjp() from `start` = [x; v]: keeps `base` if it was made for
+  // this start.
+  void begin_call(const VectorXd& start, const StepInput& in) {
+    VectorXd key(start.size() + in.anchor_targets.size() + 1);
+    key << start, Eigen::Map<const VectorXd>(in.anchor_targets.data(), in.anchor_targets.size()),
+        in.dt;
+    if (!(base.valid && same_values(base.key, key))) {
+      base.valid = false;
+      base.key = std::move(key);
+    }
+    active = base.valid ? &base : nullptr;
+    last_reuse_iterations = 0;
+  }
 
   // Trajectory of the last step (for step_vjp).
   struct Tape {
@@ -264,15 +295,21 @@ struct MassSpringSimulator::Impl {
     const int* outer = J.outerIndexPtr();
     const int* inner = J.innerIndexPtr();
     const double* val = J.valuePtr();
-    tbb::parallel_for(tbb::blocked_range<Eigen::Index>(0, J.cols(), 2048),
-                      [&](const tbb::blocked_range<Eigen::Index>& range) {
-                        for (Eigen::Index c = range.begin(); c != range.end(); ++c) {
-                          double acc = 0.0;
-                          for (int k = outer[c]; k < outer[c + 1]; ++k)
-                            acc += val[k] * xin[inner[k]];
-                          yout[c] = acc;
-                        }
-                      });
+    auto rows = [&](Eigen::Index begin, Eigen::Index end) {
+      for (Eigen::Index c = begin; c != end; ++c) {
+        double acc = 0.0;
+        for (int k = outer[c]; k < outer[c + 1]; ++k) acc += val[k] * xin[inner[k]];
+        yout[c] = acc;
+      }
+    };
+    // Threads pay off only for large systems (about 20k unknowns on this kind of pattern).
+    if (J.nonZeros() < 1000000) {
+      rows(0, J.cols());
+      return;
+    }
+    tbb::parallel_for(
+        tbb::blocked_range<Eigen::Index>(0, J.cols(), 4096),
+        [&](const tbb::blocked_range<Eigen::Index>& range) { rows(range.begin(), range.end()); });
   }
 
   // 3x3 block-Jacobi preconditioner from the diagonal blocks of J.
@@ -288,23 +325,20 @@ struct MassSpringSimulator::Impl {
     }
   }
 
-  // Preconditioned conjugate gradients on J x = b from x = 0. Stops when stop(residual) holds.
-  // Returns false on breakdown (non-positive curvature) or no convergence.
-  template <class Stop>
-  bool pcg(const VectorXd& b, VectorXd& xout, Stop stop, int max_iterations) {
-    build_preconditioner();
+  // Preconditioned conjugate gradients on J x = b from x = 0, with z = precondition(r).
+  // Stops when stop(residual) holds. Returns false on breakdown (non-positive curvature) or no
+  // convergence within max_iterations.
+  template <class Precondition, class Stop>
+  bool pcg(const VectorXd& b, VectorXd& xout, Precondition precondition, Stop stop,
+           int max_iterations) {
     const Eigen::Index n = b.size();
     xout = VectorXd::Zero(n);
     VectorXd r = b, z(n), p, Ap;
-    auto apply_precond = [&](const VectorXd& in, VectorXd& out) {
-      for (size_t f = 0; f < precond.size(); ++f)
-        out.segment<3>(3 * static_cast<Eigen::Index>(f)) =
-            precond[f] * in.segment<3>(3 * static_cast<Eigen::Index>(f));
-    };
     if (stop(r)) return true;
-    apply_precond(r, z);
+    precondition(r, z);
     p = z;
     double rz = r.dot(z);
+    if (!(rz > 0.0)) return false;  // not a positive definite preconditioner
     for (int it = 0; it < max_iterations; ++it) {
       spmv(p, Ap);
       const double pAp = p.dot(Ap);
@@ -314,12 +348,50 @@ struct MassSpringSimulator::Impl {
       r -= a * Ap;
       ++stats.cg_iterations;
       if (stop(r)) return true;
-      apply_precond(r, z);
+      precondition(r, z);
       const double rz_new = r.dot(z);
+      if (!(rz_new > 0.0)) return false;
       p = z + (rz_new / rz) * p;
       rz = rz_new;
     }
     return false;
+  }
+
+  // Block-Jacobi preconditioner (built from the current J by build_preconditioner()).
+  void apply_block_jacobi(const VectorXd& in, VectorXd& out) const {
+    out.resize(in.size());
+    for (size_t f = 0; f < precond.size(); ++f)
+      out.segment<3>(3 * static_cast<Eigen::Index>(f)) =
+          precond[f] * in.segment<3>(3 * static_cast<Eigen::Index>(f));
+  }
+
+  // Solves J x = b (free rows) for the current (Newton) J. Direct mode: conjugate gradients
+  // preconditioned by the active factorization; the first solve of a step without `base`
+  // factorizes J into it, and a solve after a stalled one factorizes J into `work`. So a step
+  // costs about one factorization, none when `base` is reused. Iterative mode: block-Jacobi
+  // CG. Returns false if J could not be factorized or CG failed.
+  template <class Stop>
+  bool linear_solve(const VectorXd& b, VectorXd& xout, Stop stop) {
+    if (!use_direct()) {
+      build_preconditioner();
+      return pcg(
+          b, xout, [this](const VectorXd& in, VectorXd& out) { apply_block_jacobi(in, out); },
+          stop, 20 * static_cast<int>(b.size()) + 100);
+    }
+    if (active && last_reuse_iterations <= refactor_iterations) {
+      const int before = stats.cg_iterations;
+      const bool ok = pcg(
+          b, xout, [this](const VectorXd& in, VectorXd& out) { out = active->ldlt.solve(in); },
+          stop, max_reuse_iterations);
+      last_reuse_iterations = stats.cg_iterations - before;
+      if (ok) return true;
+    }
+    last_reuse_iterations = 0;
+    Solver& slot = base.valid || in_adjoint ? work : base;
+    if (!factorize(slot)) return false;
+    active = &slot;
+    xout = slot.ldlt.solve(b);
+    return xout.allFinite();
   }
 
   // Largest per-node position-like size max_i |s_i| / m_i of a residual on free rows.
@@ -331,13 +403,15 @@ struct MassSpringSimulator::Impl {
     return out;
   }
 
-  bool factorize() {
-    if (!solver.analyzed) {
-      solver.ldlt.analyzePattern(J);
-      solver.analyzed = true;
+  bool factorize(Solver& slot) {
+    ++stats.factorizations;
+    if (!slot.analyzed) {
+      slot.ldlt.analyzePattern(J);
+      slot.analyzed = true;
     }
-    solver.ldlt.factorize(J);
-    return solver.ldlt.info() == Eigen::Success;
+    slot.ldlt.factorize(J);
+    slot.valid = slot.ldlt.info() == Eigen::Success;
+    return slot.valid;
   }
 
   // out = J_full(y) * lam on all nodes, with the exact Hessian (lam: 3N).
@@ -379,19 +453,15 @@ struct MassSpringSimulator::Impl {
       residual(y, xn, vn, lag, h, r);
       const VectorXd rf = gather_free(r);
       assemble(y, lag, h, false);
-      if (use_direct()) {
-        ++stats.factorizations;
-        if (!factorize()) return -it;
-        dy_free = -solver.ldlt.solve(rf);
-      } else {
-        // Inexact Newton: solve to 1e-3 of the current residual, but at least to a tenth of
-        // the Newton tolerance (mass-scaled, i.e. in metres).
-        const double target = std::max(1e-3 * mass_scaled_inf(rf), 0.1 * tol);
-        pcg(
-            rf, dy_free, [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; },
-            20 * static_cast<int>(rf.size()) + 100);
-        dy_free = -dy_free;
-      }
+      // Inexact Newton: solve to 1e-4 of the current residual (1e-3 with block Jacobi), but at
+      // least to a tenth of the Newton tolerance (mass-scaled, i.e. in metres).
+      const double forcing = use_direct() ? 1e-4 : 1e-3;
+      const double target = std::max(forcing * mass_scaled_inf(rf), 0.1 * tol);
+      if (!linear_solve(rf, dy_free,
+                        [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; }) &&
+          use_direct())
+        return -it;
+      dy_free = -dy_free;
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
       if (!std::isfinite(step_inf)) return -it;
       double t = 1.0;
@@ -466,7 +536,9 @@ struct MassSpringSimulator::Impl {
     tape.vs.assign(1, v);
     stats = StepStats{};
     stats.substeps = S;
+    begin_call(tape.before, in);
     phys.setZero(m.num_surface, 3);
+    phys_norm.setZero(m.num_surface);
     Lag lag;
     VectorXd y;
     for (int s = 1; s <= S; ++s) {
@@ -483,6 +555,8 @@ struct MassSpringSimulator::Impl {
         Vector3d f = m.mass[i] * (vnew.segment<3>(3 * i) - v.segment<3>(3 * i)) / h;
         if (in.control.size() > 0) f -= in.control.segment<3>(3 * i);
         phys.row(i) += f.transpose() / S;
+        const Vector3d weight = m.mass[i] * P().gravity;
+        phys_norm[i] += (weight.norm() + (f - weight).norm()) / S;
       }
       x = y;
       v = vnew;
@@ -508,6 +582,15 @@ struct MassSpringSimulator::Impl {
     Lag lag;
     VectorXd G, lam(n3), Jlam, gx_new(n3), gv_new(n3);
     Eigen::SparseLU<Eigen::SparseMatrix<double>> lu;
+    // Adjoint solves use `work` only: `base` (a projected Hessian at the step's start) is far
+    // from the exact Hessians at its end.
+    active = nullptr;
+    last_reuse_iterations = 0;
+    in_adjoint = true;
+    struct Reset {
+      bool& flag;
+      ~Reset() { flag = false; }
+    } reset{in_adjoint};
     for (int s = S - 1; s >= 0; --s) {
       const VectorXd& xn = tape.xs[static_cast<size_t>(s)];
       const VectorXd& vn = tape.vs[static_cast<size_t>(s)];
@@ -519,20 +602,19 @@ struct MassSpringSimulator::Impl {
         assemble(y, lag, h, true);
         const VectorXd Gf = gather_free(G);
         VectorXd lf;
-        const double gnorm = Gf.norm();
-        const double target = P().adjoint_tolerance * gnorm;
-        const bool iterative_ok =
-            !use_direct() && pcg(
-                                 Gf, lf, [&](const VectorXd& res) { return res.norm() <= target; },
-                                 20 * static_cast<int>(Gf.size()) + 100);
-        if (iterative_ok) {
-        } else if (factorize()) {
-          lf = solver.ldlt.solve(Gf);
-        } else {
-          lu.compute(J);
-          if (lu.info() != Eigen::Success)
-            throw std::runtime_error("mass_spring: singular system in step_vjp");
-          lf = lu.solve(Gf);
+        const double target = P().adjoint_tolerance * Gf.norm();
+        // CG preconditioned by the factorization of a later substep's matrix (refactorized
+        // when that stalls). The exact Hessian may be indefinite (compressed springs): CG then
+        // breaks down and the system is solved by LDL^T, else LU.
+        if (!linear_solve(Gf, lf, [&](const VectorXd& res) { return res.norm() <= target; })) {
+          if (factorize(work)) {
+            lf = work.ldlt.solve(Gf);
+          } else {
+            lu.compute(J);
+            if (lu.info() != Eigen::Success)
+              throw std::runtime_error("mass_spring: singular system in step_vjp");
+            lf = lu.solve(Gf);
+          }
         }
         for (size_t k = 0; k < m.free_nodes.size(); ++k)
           lam.segment<3>(3 * m.free_nodes[k]) = lf.segment<3>(3 * static_cast<Eigen::Index>(k));
@@ -618,6 +700,7 @@ MassSpringSimulator::MassSpringSimulator(const Mesh& mesh, const Vertices& posit
   m_impl->x = m_impl->model->rest;
   m_impl->v = VectorXd::Zero(m_impl->x.size());
   m_impl->phys = Vertices::Zero(m_impl->model->num_surface, 3);
+  m_impl->phys_norm = Eigen::VectorXd::Zero(m_impl->model->num_surface);
 }
 
 MassSpringSimulator::MassSpringSimulator(const Mesh& mesh, std::vector<int> anchors,
@@ -666,6 +749,10 @@ void MassSpringSimulator::step(const StepInput& in) {
 
 Vertices MassSpringSimulator::physical_forces() const {
   return m_impl->phys;
+}
+
+Eigen::VectorXd MassSpringSimulator::physical_force_magnitudes() const {
+  return m_impl->phys_norm;
 }
 
 SimState MassSpringSimulator::save() const {

@@ -74,6 +74,8 @@ void Params::validate() const {
   positive(stretch_stiffness, "stretch_stiffness");
   non_negative(shear_stiffness, "shear_stiffness");
   non_negative(bend_stiffness, "bend_stiffness");
+  non_negative(layer_stiffness, "layer_stiffness");
+  non_negative(layer_distance, "layer_distance");
   if (material != Material::cloth) positive(volume_stiffness, "volume_stiffness");
   non_negative(lattice_spacing, "lattice_spacing");
   non_negative(damping_alpha, "damping_alpha");

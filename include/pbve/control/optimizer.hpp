@@ -193,7 +193,7 @@ struct ControlFrameResult {
 
   /// Sum over blocks of the control force norm |f_b| (newtons; the force part of wrenches).
   double control_force = 0.0;
-  /// Sum over free vertices of |Simulator::physical_forces()| during the committed step (N).
+  /// Sum over free vertices of Simulator::physical_force_magnitudes() in the committed step (N).
   double physical_force = 0.0;
   /// The committed control vector (ControlLayout::size()).
   Eigen::VectorXd control;

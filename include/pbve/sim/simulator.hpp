@@ -103,6 +103,17 @@ class Simulator {
   /// Zero rows for anchored vertices.
   virtual Vertices physical_forces() const = 0;
 
+  /// Per surface vertex (#V), the sum of the norms of the external forces (gravity, contact)
+  /// and of the internal ones (elastic, damping) acting on it during the last step, averaged
+  /// over the substeps, newtons; zero for anchored vertices. This is the report's
+  /// `physical_force` (the scale control forces are compared with): unlike the norm of the
+  /// net force it does not vanish when the forces balance, e.g. a cloth hanging at rest has
+  /// 2 m g per vertex. The default returns the row norms of physical_forces(); engines that
+  /// know their force terms override it.
+  virtual Eigen::VectorXd physical_force_magnitudes() const {
+    return physical_forces().rowwise().norm();
+  }
+
   /// Complete dynamic state.
   virtual SimState save() const = 0;
   /// Restores a state made by save() of this simulator or of a clone.

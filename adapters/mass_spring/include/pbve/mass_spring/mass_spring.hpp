@@ -41,8 +41,13 @@ std::string to_string(Material m);
 /// Linear solver of the Newton and adjoint systems (sparse, symmetric).
 enum class LinearSolver {
   automatic,  ///< direct below Params::direct_solver_max_dofs free unknowns, iterative above
-  direct,     ///< sparse LDL^T (Eigen SimplicialLDLT), pattern analyzed once
-  iterative,  ///< conjugate gradients with a 3x3 block-Jacobi preconditioner (linear cost)
+  /// sparse LDL^T (Eigen SimplicialLDLT, pattern analyzed once), factorized about once per
+  /// step: later Newton iterations and substeps of the step run conjugate gradients
+  /// preconditioned by that factorization, and factorize again only if those stall
+  direct,
+  /// conjugate gradients with a 3x3 block-Jacobi preconditioner (no factorization: least
+  /// memory, but the iteration count grows with the resolution)
+  iterative,
 };
 
 /// A collision plane: nodes are kept on the side `normal` points to (penalty contact with
@@ -73,6 +78,16 @@ struct Params {
   /// Bending modulus, N*m: adds bend_stiffness / L0^2 to the spring across each interior edge
   /// (L0: rest distance of the two opposite vertices). Approximate (spring-based) bending.
   double bend_stiffness = 1e-4;
+  /// Cloth: stiffness modulus of the ties between the two layers of a thin closed surface, N/m
+  /// (0 disables them). A board or a thick sheet made into cloth is two layers joined at the
+  /// rim; with no self-collision they would drift through each other (the back layer showing
+  /// through the front). Each vertex is tied to the nearest vertex of the opposite layer (a
+  /// vertex within layer_distance behind it whose normal points the other way) by a spring of
+  /// k = layer_stiffness * vertex area / L0^2. The ties keep the layers' distance, not their
+  /// alignment, so the layers still slide over each other and bending stays soft.
+  double layer_stiffness = 100.0;
+  /// Cloth: largest distance between tied layers, metres; 0 uses the mean rest edge length.
+  double layer_distance = 0.0;
   /// Solids: Young's-modulus-like stiffness of the interior lattice and of the ties between
   /// surface vertices and the lattice, Pa. Unused for cloth.
   double volume_stiffness = 0.0;
@@ -103,12 +118,15 @@ struct Params {
   /// Linear solver choice.
   LinearSolver linear_solver = LinearSolver::automatic;
   /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node).
-  int direct_solver_max_dofs = 1500;
+  /// Measured crossover (docs/benchmarks.md): direct is faster for a 484-vertex cloth, block
+  /// Jacobi for 1k vertices and more.
+  int direct_solver_max_dofs = 2000;
   /// Iterative solver: relative residual of the adjoint solves in step_vjp() (> 0).
   double adjoint_tolerance = 1e-11;
 
   /// Defaults for a material:
-  /// - cloth: 0.3 kg/m^2, stretch 2000 N/m, shear 100 N/m, bend 1e-4 N*m, alpha 0.5, beta 0.01;
+  /// - cloth: 0.3 kg/m^2, stretch 2000 N/m, shear 100 N/m, bend 1e-4 N*m, layer ties 100 N/m,
+  ///   alpha 0.5, beta 0.01;
   /// - elastic: 1000 kg/m^3, lattice 2e4 Pa, surface stretch 200 N/m, alpha 0.5, beta 0.002;
   /// - stiff: 1000 kg/m^3, lattice 2e7 Pa, surface stretch 2e5 N/m, alpha 0.5, beta 2e-4.
   static Params preset(Material m);
@@ -155,6 +173,9 @@ class MassSpringSimulator final : public Simulator {
   std::vector<int> anchors() const override;
   void step(const StepInput& in) override;
   Vertices physical_forces() const override;
+  /// |m g| + |net force - m g - control| per vertex (internal, damping and contact forces
+  /// together count as one term), averaged over the substeps.
+  Eigen::VectorXd physical_force_magnitudes() const override;
   SimState save() const override;
   void restore(const SimState& state) override;
   std::unique_ptr<Simulator> clone() const override;
