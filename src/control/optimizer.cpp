@@ -96,6 +96,8 @@ class WindowProblem {
       for (int p = 0; p < m_bs / 3; ++p)
         m_eps[b * (m_bs / 3) + p] = options.force_smoothing * m_layout.block_mass[b] *
                                     kStandardGravity * (p == 0 ? 1.0 : options.torque_arm);
+    m_force_unit = kStandardGravity * m_layout.block_mass.sum();
+    if (!(m_force_unit > 0.0)) m_force_unit = 1.0;
     m_fixed.assign(static_cast<size_t>(frames), Eigen::VectorXd::Zero(m_size));
     m_state0 = sim.save();
   }
@@ -150,7 +152,8 @@ class WindowProblem {
                              m_options.barrier, grad);
   }
 
-  // lF EF + lT ET over the window with gradients w.r.t. each frame's full control.
+  // lF EF + lT ET over the window with gradients w.r.t. each frame's full control; EF and ET
+  // in units of the object's weight (dimensionless).
   double force_terms(const std::vector<Eigen::VectorXd>& u, std::vector<Eigen::VectorXd>* grad,
                      double* ef_sum, double* et_sum) const {
     const int nb = static_cast<int>(m_eps.size());
@@ -163,11 +166,14 @@ class WindowProblem {
       ef += smoothed_norm_sum(u[k], block, m_eps, grad ? &g1 : nullptr);
       et += smoothed_norm_sum(u[k] - prev, block, m_eps, grad ? &g2 : nullptr);
       if (grad) {
-        (*grad)[k] += m_options.weights.force * g1 + m_options.weights.temporal * g2;
-        if (k > 0) (*grad)[k - 1] -= m_options.weights.temporal * g2;
+        (*grad)[k] += (m_options.weights.force * g1 + m_options.weights.temporal * g2) /
+                      m_force_unit;
+        if (k > 0) (*grad)[k - 1] -= (m_options.weights.temporal / m_force_unit) * g2;
       }
     }
     (void)nb;
+    ef /= m_force_unit;
+    et /= m_force_unit;
     if (ef_sum) *ef_sum = ef;
     if (et_sum) *et_sum = et;
     return m_options.weights.force * ef + m_options.weights.temporal * et;
@@ -337,6 +343,7 @@ class WindowProblem {
   Eigen::VectorXd m_weights;
   Eigen::VectorXd m_previous;
   Eigen::VectorXd m_eps;
+  double m_force_unit = 1.0;  // the object's weight g0 * sum of block masses, newtons
   std::vector<Eigen::VectorXd> m_fixed;
   SimState m_state0;
   std::vector<int> m_active;
