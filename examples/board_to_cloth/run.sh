@@ -5,4 +5,4 @@
 # Usage: examples/board_to_cloth/run.sh [OUT_DIR]   (after building the release preset)
 set -euo pipefail
 source "$(dirname "$0")/../common.sh"
-run_example "${1:-$root/out/board_to_cloth}" --shape board --motion swing --frames 60
+run_example "${1:-$root/out/board_to_cloth}" --shape board --motion swing --frames 90

@@ -355,8 +355,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
         << "\n  gravity: [0, 9.81, 0]\n  substeps: 3\n"
         << extra_sim;
   scene
-      << "control:\n  enabled: true\n  weights: {visibility: 1.0, force: 0.001, temporal: 0.001}\n"
-         "  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n";
+      << "control:\n  enabled: true\n  weights: {visibility: 1.0, force: 0.03, temporal: 0.03}\n"
+         "  margin: 0.01\n  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n";
   scene << "output: {video: edited.mp4, report: report.json}\n";
   r.scene_yaml = scene.str();
   return r;
