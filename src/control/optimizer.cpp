@@ -166,8 +166,8 @@ class WindowProblem {
       ef += smoothed_norm_sum(u[k], block, m_eps, grad ? &g1 : nullptr);
       et += smoothed_norm_sum(u[k] - prev, block, m_eps, grad ? &g2 : nullptr);
       if (grad) {
-        (*grad)[k] += (m_options.weights.force * g1 + m_options.weights.temporal * g2) /
-                      m_force_unit;
+        (*grad)[k] +=
+            (m_options.weights.force * g1 + m_options.weights.temporal * g2) / m_force_unit;
         if (k > 0) (*grad)[k - 1] -= (m_options.weights.temporal / m_force_unit) * g2;
       }
     }

@@ -354,9 +354,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
   scene << "simulation:\n  engine: mass_spring\n  material: " << material
         << "\n  gravity: [0, 9.81, 0]\n  substeps: 3\n"
         << extra_sim;
-  scene
-      << "control:\n  enabled: true\n  weights: {visibility: 1.0, force: 0.03, temporal: 0.03}\n"
-         "  margin: 0.01\n  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n";
+  scene << "control:\n  enabled: true\n  weights: {visibility: 1.0, force: 0.03, temporal: 0.03}\n"
+           "  margin: 0.01\n  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n";
   scene << "output: {video: edited.mp4, report: report.json}\n";
   r.scene_yaml = scene.str();
   return r;

@@ -128,8 +128,8 @@ TEST(EditCliControl, ControlReducesTheViolationOfTheSwungBoard) {
   const pbve::Report free = pbve::read_report(dir / "u.json");
   const pbve::Report controlled = pbve::read_report(dir / "report.json");
   ASSERT_EQ(controlled.frames.size(), 36u);
-  std::printf("violation summed over 36 frames: %.2f%% without control, %.2f%% with\n",
-              total(free), total(controlled));
+  std::printf("violation summed over 36 frames: %.2f%% without control, %.2f%% with\n", total(free),
+              total(controlled));
   ASSERT_GT(total(free), 5.0) << "the clip must expose the back without control";
   EXPECT_LT(total(controlled), 0.5 * total(free));
 }

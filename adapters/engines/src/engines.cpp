@@ -110,9 +110,9 @@ std::vector<std::string> available_engines() {
 
 std::vector<std::string> engine_parameters(const std::string& engine) {
   if (engine == "mass_spring")
-    return {"density",          "stretch_stiffness", "shear_stiffness",   "bend_stiffness",
-            "layer_stiffness",  "layer_distance",    "volume_stiffness",  "lattice_spacing",
-            "damping_alpha",    "damping_beta",      "contact_stiffness", "friction_velocity",
+    return {"density",           "stretch_stiffness", "shear_stiffness",   "bend_stiffness",
+            "layer_stiffness",   "layer_distance",    "volume_stiffness",  "lattice_spacing",
+            "damping_alpha",     "damping_beta",      "contact_stiffness", "friction_velocity",
             "newton_iterations", "newton_tolerance"};
   return {};
 }

@@ -51,7 +51,7 @@ struct Lag {
 
 struct MassSpringSimulator::Impl {
   std::shared_ptr<const Model> model;
-  VectorXd x, v;  // 3N positions (m) and velocities (m/s)
+  VectorXd x, v;              // 3N positions (m) and velocities (m/s)
   Vertices phys;              // #V by 3, last step's averaged physical forces
   Eigen::VectorXd phys_norm;  // #V, last step's averaged |m g| + |other physical forces|
   StepStats stats;
@@ -375,8 +375,8 @@ struct MassSpringSimulator::Impl {
     if (!use_direct()) {
       build_preconditioner();
       return pcg(
-          b, xout, [this](const VectorXd& in, VectorXd& out) { apply_block_jacobi(in, out); },
-          stop, 20 * static_cast<int>(b.size()) + 100);
+          b, xout, [this](const VectorXd& in, VectorXd& out) { apply_block_jacobi(in, out); }, stop,
+          20 * static_cast<int>(b.size()) + 100);
     }
     if (active && last_reuse_iterations <= refactor_iterations) {
       const int before = stats.cg_iterations;

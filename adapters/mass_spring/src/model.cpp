@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <numbers>
 #include <stdexcept>
 #include <string>
-#include <cstdint>
 #include <unordered_map>
 
 #include <tbb/parallel_for.h>
@@ -88,7 +88,8 @@ void add_layer_ties(const Vertices& x, const Triangles& t, const Eigen::VectorXd
     return Eigen::Vector3i(((p - lo) / reach).array().floor().cast<int>());
   };
   auto key = [](const Eigen::Vector3i& c) {
-    return (static_cast<std::int64_t>(c[0]) * 73856093) ^ (static_cast<std::int64_t>(c[1]) * 19349663) ^
+    return (static_cast<std::int64_t>(c[0]) * 73856093) ^
+           (static_cast<std::int64_t>(c[1]) * 19349663) ^
            (static_cast<std::int64_t>(c[2]) * 83492791);
   };
   std::unordered_map<std::int64_t, std::vector<int>> grid;

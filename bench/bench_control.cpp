@@ -1,0 +1,147 @@
+// The control optimizer on one scene, all in one run: the swung cloth board of the control
+// tests (tests/control/cloth_scene.hpp) at 33 x 25 = 825 vertices.
+//
+// - BM_Frames/<mode>: ms per frame over frames 24..35 (where the cloth turns its back without
+//   control), from the same saved state, for the uncontrolled simulation and for control
+//   (L-BFGS, 20 evaluations per frame, adjoint gradients, default active set). Counters:
+//   `violation_pct` = mean violation over those frames (the paper's Figure 7 measure),
+//   `force_ratio` = median control / physical force, `ms_per_frame`.
+// - BM_Gradient/<mode>: one gradient of the full energy over *all* vertices (the paper's
+//   formulation: 2 x 3 x #V simulations by central differences, serial or in parallel over
+//   clones) against the adjoint. A whole frame with central differences costs about 20 such
+//   gradients, too long to run here; the frame cost follows from this ratio.
+
+#include <algorithm>
+#include <chrono>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+
+#include "control/cloth_scene.hpp"
+
+namespace {
+
+using pbve::ControlFrameInput;
+using pbve::ControlOptimizer;
+using pbve::ControlOptions;
+using pbve::GradientMode;
+
+constexpr int kFirst = 24, kLast = 35;
+
+pbve::test::ClothScene make_scene() {
+  pbve::test::ClothScene scene(32, 24);
+  scene.amplitude_deg = 60.0;
+  scene.period_s = 0.7;
+  scene.bend_stiffness = 1e-4;
+  scene.substeps = 3;
+  return scene;
+}
+
+std::unique_ptr<pbve::Simulator> make_simulator(const pbve::test::ClothScene& scene) {
+  auto p = pbve::mass_spring::Params::preset(pbve::mass_spring::Material::cloth);
+  p.bend_stiffness = scene.bend_stiffness;
+  p.substeps = scene.substeps;
+  p.linear_solver = pbve::mass_spring::LinearSolver::direct;
+  return std::make_unique<pbve::mass_spring::MassSpringSimulator>(scene.sheet, scene.anchors, p);
+}
+
+// The simulator advanced without control to the state before frame kFirst.
+std::unique_ptr<pbve::Simulator> start(const pbve::test::ClothScene& scene) {
+  auto sim = make_simulator(scene);
+  for (int f = 1; f < kFirst; ++f) {
+    pbve::StepInput in;
+    in.dt = 1.0 / scene.fps;
+    in.anchor_targets = scene.anchor_targets(f);
+    sim->step(in);
+  }
+  return sim;
+}
+
+enum Mode { uncontrolled = 0, adjoint = 1, central_parallel = 2, central_serial = 3 };
+
+double ms_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void BM_Frames(benchmark::State& state) {
+  const auto mode = static_cast<Mode>(state.range(0));
+  const pbve::test::ClothScene scene = make_scene();
+  const auto sim0 = start(scene);
+  std::vector<ControlFrameInput> inputs;
+  for (int f = kFirst; f <= kLast; ++f) inputs.push_back(scene.control_input(f));
+  ControlOptions o;
+  o.solver = pbve::ControlSolver::lbfgs;
+  o.max_evaluations = 20;
+  o.gradient = GradientMode::adjoint;
+  double violation = 0.0, ratio = 0.0, ms = 0.0;
+  for (auto _ : state) {
+    ms = 0.0;  // wall time of the frames, without the metric
+    const auto t0 = std::chrono::steady_clock::now();
+    auto sim = sim0->clone();
+    ControlOptimizer opt(scene.two_sided, {}, o);
+    std::vector<double> ratios;
+    violation = 0.0;
+    for (size_t k = 0; k < inputs.size(); ++k) {
+      const auto r = mode == uncontrolled ? opt.step_uncontrolled(*sim, inputs[k])
+                                          : opt.step(*sim, std::span(&inputs[k], 1));
+      ratios.push_back(r.physical_force > 0.0 ? r.control_force / r.physical_force : 0.0);
+      const auto t1 = std::chrono::steady_clock::now();
+      violation += scene.violation_pct(sim->positions(), kFirst + static_cast<int>(k));
+      ms -= ms_since(t1);
+    }
+    ms += ms_since(t0);
+    std::sort(ratios.begin(), ratios.end());
+    ratio = ratios[ratios.size() / 2];
+    violation /= static_cast<double>(inputs.size());
+  }
+  state.counters["ms_per_frame"] = ms / static_cast<double>(inputs.size());
+  state.counters["violation_pct"] = violation;
+  state.counters["force_ratio"] = ratio;
+  state.counters["vertices"] = scene.num_vertices();
+}
+
+void BM_Gradient(benchmark::State& state) {
+  const auto mode = static_cast<Mode>(state.range(0));
+  const pbve::test::ClothScene scene = make_scene();
+  const auto sim = start(scene);
+  const std::vector<ControlFrameInput> window{scene.control_input(kFirst)};
+  ControlOptions o;
+  o.parallel = mode != central_serial;
+  ControlOptimizer opt(scene.two_sided, {}, o);
+  const GradientMode g = mode == adjoint ? GradientMode::adjoint : GradientMode::central;
+  for (auto _ : state) benchmark::DoNotOptimize(opt.evaluate(*sim, window, {}, g, {}));
+  state.counters["variables"] = 3.0 * scene.num_vertices();
+}
+
+const char* mode_name(int m) {
+  static const char* names[] = {"uncontrolled", "adjoint", "central_parallel", "central_serial"};
+  return names[m];
+}
+
+void frame_modes(benchmark::internal::Benchmark* b) {
+  b->ArgName("mode");
+  b->Arg(uncontrolled);
+  b->Arg(adjoint);
+}
+
+}  // namespace
+
+BENCHMARK(BM_Frames)->Apply(frame_modes)->Unit(benchmark::kMillisecond)->Iterations(1);
+BENCHMARK(BM_Gradient)
+    ->ArgName("mode")
+    ->Arg(adjoint)
+    ->Arg(central_parallel)
+    ->Arg(central_serial)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1);
+
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  for (int m = 0; m < 4; ++m) benchmark::AddCustomContext(std::to_string(m), mode_name(m));
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}
