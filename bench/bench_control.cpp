@@ -37,20 +37,13 @@ pbve::test::ClothScene make_scene() {
   scene.period_s = 0.7;
   scene.bend_stiffness = 1e-4;
   scene.substeps = 3;
+  scene.linear_solver = pbve::mass_spring::LinearSolver::direct;
   return scene;
-}
-
-std::unique_ptr<pbve::Simulator> make_simulator(const pbve::test::ClothScene& scene) {
-  auto p = pbve::mass_spring::Params::preset(pbve::mass_spring::Material::cloth);
-  p.bend_stiffness = scene.bend_stiffness;
-  p.substeps = scene.substeps;
-  p.linear_solver = pbve::mass_spring::LinearSolver::direct;
-  return std::make_unique<pbve::mass_spring::MassSpringSimulator>(scene.sheet, scene.anchors, p);
 }
 
 // The simulator advanced without control to the state before frame kFirst.
 std::unique_ptr<pbve::Simulator> start(const pbve::test::ClothScene& scene) {
-  auto sim = make_simulator(scene);
+  auto sim = scene.simulator();
   for (int f = 1; f < kFirst; ++f) {
     pbve::StepInput in;
     in.dt = 1.0 / scene.fps;

@@ -34,6 +34,7 @@ struct ClothScene {
   double fps = 30.0;
   double bend_stiffness = 1e-2;  ///< N*m (stiffer than the cloth preset: a floppy board)
   int substeps = 5;              ///< backward Euler substeps per frame
+  mass_spring::LinearSolver linear_solver = mass_spring::LinearSolver::automatic;
 
   Camera camera;             ///< 640 x 480, f = 600 px
   Mesh sheet;                ///< one-sided sheet, front (normal -z) towards the camera
@@ -107,6 +108,7 @@ struct ClothScene {
     auto p = mass_spring::Params::preset(mass_spring::Material::cloth);
     p.bend_stiffness = bend_stiffness;
     p.substeps = substeps;
+    p.linear_solver = linear_solver;
     return std::make_unique<mass_spring::MassSpringSimulator>(sheet, anchors, p);
   }
   /// The paper's Figure 7 measure on the simulated sheet: area showing the never-observed back
