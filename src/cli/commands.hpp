@@ -33,5 +33,6 @@ class Args {
 int run_edit(const std::vector<std::string>& args);
 int run_synth(const std::vector<std::string>& args);
 int run_plot(const std::vector<std::string>& args);
+int run_bench(const std::vector<std::string>& args);
 
 }  // namespace pbve::cli

@@ -3,6 +3,7 @@
 //   pbve edit SCENE.yaml [-o OUT.mp4] [--report R.json] [--no-control] [--frames A:B]
 //   pbve synth [--shape S] [--motion M] [--frames N] [--size WxH] [--image] OUT_DIR
 //   pbve plot REPORT.json [REPORT2.json] [-o PLOT.png]
+//   pbve bench [-o BENCH.json] [--vertices LIST] [--frames A:B] [--modes LIST]
 
 #include <cstdio>
 #include <cstring>
@@ -26,6 +27,7 @@ const char* kUsage =
     "  edit SCENE.yaml   simulate, control and render: writes the edited video and a report\n"
     "  synth OUT_DIR     make a synthetic input clip, its pose file and a scene file\n"
     "  plot REPORT.json  draw violation and force plots of one or two reports into a PNG\n"
+    "  bench             time example 1 at several mesh resolutions, with and without control\n"
     "\n"
     "Run 'pbve <command> --help' for the options of a command.\n";
 
@@ -47,6 +49,7 @@ int main(int argc, char** argv) {
     if (cmd == "edit") return pbve::cli::run_edit(args);
     if (cmd == "synth") return pbve::cli::run_synth(args);
     if (cmd == "plot") return pbve::cli::run_plot(args);
+    if (cmd == "bench") return pbve::cli::run_bench(args);
     std::fprintf(stderr, "pbve: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
     return 2;
   } catch (const pbve::cli::UsageError& e) {

@@ -9,6 +9,7 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "pbve/core/footage.hpp"
 #include "pbve/edit/report.hpp"
@@ -192,3 +193,44 @@ TEST(EditCliUsage, BadFrameRangeAndMissingSceneAreUsageErrors) {
 }
 
 }  // namespace
+
+// `pbve bench` on a tiny clip: one JSON with a run per resolution and mode, central
+// differences skipped (with the reason) above the given size.
+TEST(BenchCli, WritesOneRunPerResolutionAndMode) {
+  pbve::test::TempDir dir;
+  const fs::path out = dir / "bench.json";
+  const CmdResult r = pbve_cmd(
+      "bench --quiet --vertices 60,200 --frames 0:3 --size 96x72 --central-max-vertices 100 "
+      "--work " +
+      (dir / "work").string() + " -o " + out.string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  const nlohmann::json doc = nlohmann::json::parse(read(out));
+  EXPECT_EQ(doc.at("example"), "board_to_cloth");
+  const auto& runs = doc.at("runs");
+  ASSERT_EQ(runs.size(), 6u);
+  int small = 0, large = 0;
+  for (const auto& run : runs) {
+    const int v = run.at("vertices").get<int>();
+    const std::string mode = run.at("mode").get<std::string>();
+    if (run.value("skipped", false)) {
+      EXPECT_EQ(mode, "central");
+      EXPECT_GT(v, 100);
+      EXPECT_NE(run.at("reason").get<std::string>().find("--central-max-vertices"),
+                std::string::npos);
+      continue;
+    }
+    (run.at("target_vertices") == 60 ? small : large) = v;
+    EXPECT_EQ(run.at("simulated_frames"), 2);  // frame 0 is the rest frame
+    EXPECT_GT(run.at("ms_per_frame_median").get<double>(), 0.0);
+    EXPECT_GE(run.at("violation_pct_mean").get<double>(), 0.0);
+    if (mode == "unconstrained") {
+      EXPECT_EQ(run.at("control_to_physical_force_median").get<double>(), 0.0);
+    } else {
+      EXPECT_GT(run.at("cost_vs_unconstrained").get<double>(), 0.0);
+      EXPECT_GT(run.at("solve_ms_median").get<double>(), 0.0);
+    }
+  }
+  EXPECT_LT(small, large);                             // the two resolutions are different meshes
+  EXPECT_TRUE(fs::exists(dir / "work" / "clip.mp4"));  // --work keeps the clip
+  EXPECT_FALSE(fs::exists(dir / "bench.json.tmp"));
+}
