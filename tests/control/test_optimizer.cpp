@@ -147,6 +147,32 @@ INSTANTIATE_TEST_SUITE_P(Solvers, EverySolver,
                                            ControlSolver::ipopt),
                          [](const auto& info) { return std::string(to_string(info.param)); });
 
+TEST(ControlOptimizer, SkipsTheSolverWhenZeroControlKeepsEverythingHidden) {
+  // Facing values about 0.2: inside the active band (0.3), so the blocks are optimized, but
+  // beyond the margin (0.05), so EC = 0 at zero control.
+  const double turned = std::acos(0.2);
+  test::ParticleSimulator sim(sheet(turned), {0});
+  ControlOptimizer opt(sheet_triangles());
+  const ControlFrameResult r = opt.step(sim, frames(1));
+  EXPECT_GT(r.active_blocks, 0);
+  EXPECT_EQ(r.evaluations, 1);
+  EXPECT_EQ(r.status, ControlStatus::converged);
+  EXPECT_NE(r.message.find("no triangle at risk"), std::string::npos) << r.message;
+  EXPECT_TRUE(r.control.isZero(0.0));
+  EXPECT_EQ(r.visibility_energy, 0.0);
+  EXPECT_EQ(r.energy, 0.0);
+
+  // With lT > lF the shortcut does not apply: the solver runs, and finds nothing lower.
+  test::ParticleSimulator sim2(sheet(turned), {0});
+  ControlOptions o;
+  o.weights.temporal = 2.0 * o.weights.force;
+  ControlOptimizer solved(sheet_triangles(), {}, o);
+  const ControlFrameResult r2 = solved.step(sim2, frames(1));
+  EXPECT_EQ(r2.message.find("no triangle at risk"), std::string::npos) << r2.message;
+  EXPECT_GE(r2.energy, r.energy);
+  EXPECT_EQ(sim2.positions(), sim.positions());
+}
+
 TEST(ControlOptimizer, CentralDifferencesThroughABlackBoxEngine) {
   BlackBoxParticles sim(sheet(kEdgeOn), {0});
   ControlOptions o;
