@@ -78,7 +78,8 @@ struct Params {
   double friction = 1.0;
   /// Soft: position solver iterations per substep (>= 1).
   int position_iterations = 4;
-  /// Collision margin, metres (> 0): soft nodes and rigid hulls keep this distance from planes.
+  /// Collision margin, metres (> 0). Soft nodes keep this distance from planes; rigid hulls
+  /// rest on them (their contacts become active within this distance).
   double collision_margin = 0.002;
   /// Rigid: fraction of the linear velocity lost per second, in [0, 1].
   double linear_damping = 0.0;
