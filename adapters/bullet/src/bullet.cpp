@@ -209,7 +209,12 @@ BulletSimulator::Impl::~Impl() {
 }
 
 void BulletSimulator::Impl::build_world() {
-  config = std::make_unique<btSoftBodyRigidBodyCollisionConfiguration>();
+  // Small pools (Bullet allocates beyond them on demand): the default 4096 manifolds and
+  // algorithms make every world, hence every clone(), allocate and touch megabytes.
+  btDefaultCollisionConstructionInfo cci;
+  cci.m_defaultMaxPersistentManifoldPoolSize = 64;
+  cci.m_defaultMaxCollisionAlgorithmPoolSize = 64;
+  config = std::make_unique<btSoftBodyRigidBodyCollisionConfiguration>(cci);
   dispatcher = std::make_unique<btCollisionDispatcher>(config.get());
   broadphase = std::make_unique<btDbvtBroadphase>();
   solver = std::make_unique<btSequentialImpulseConstraintSolver>();
