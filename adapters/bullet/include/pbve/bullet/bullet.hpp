@@ -112,13 +112,14 @@ struct Params {
 /// Soft materials: one node per vertex, control = one force per vertex (ControlSpace::
 /// vertex_force). Anchored nodes have zero inverse mass and are moved kinematically along the
 /// linear interpolation of their targets over the substeps; after step() they are exactly at
-/// their targets.
+/// their targets. Their control blocks exist (with the node's nominal mass) but are ignored.
 ///
 /// Rigid material: one body per connected piece (vertices joined by triangles), control = one
 /// force + torque per body at its centre of mass (ControlSpace::body_wrench). A body with an
 /// anchored vertex is kinematic: each substep it takes the rigid transform that best fits its
 /// anchors' interpolated targets (least squares); its anchored vertices are reported exactly at
-/// their targets, its other vertices follow the fitted transform.
+/// their targets, its other vertices follow the fitted transform, and its control block is
+/// ignored. Pieces collide as their convex hulls.
 ///
 /// Exact replay: every step() starts from a normalized world (all objects removed and re-added
 /// in a fixed order, broadphase reset, so no pair or contact manifold survives from an earlier
