@@ -75,6 +75,39 @@ ConformanceCase rigid_case() {
   return c;
 }
 
+// The replay, clone and anchor properties with the presets themselves (stiff links, bending,
+// shape matching, and a pressure), where the f = m a probe does not apply.
+TEST(BulletPresets, ReplayCloneAndAnchorsAreExact) {
+  for (Material m : {Material::cloth, Material::elastic, Material::stiff, Material::rigid}) {
+    SCOPED_TRACE(pbve::bullet::to_string(m));
+    ConformanceCase c;
+    c.name = pbve::bullet::to_string(m);
+    c.make = [m] {
+      Params p = Params::preset(m);
+      if (m == Material::elastic) p.pressure = 500.0;
+      p.planes.push_back(pbve::test::ground_at(0.1));
+      if (m == Material::cloth)
+        return std::make_unique<BulletSimulator>(pbve::test::grid_mesh(8, 0.3),
+                                                 std::vector<int>{0, 7}, p);
+      if (m == Material::rigid)
+        return std::make_unique<BulletSimulator>(
+            pbve::test::join(pbve::test::icosphere(1, 0.06, Eigen::Vector3d(-0.15, 0, 1)),
+                             pbve::test::icosphere(1, 0.06, Eigen::Vector3d(0.15, 0, 1))),
+            std::vector<int>{0}, p);
+      return std::make_unique<BulletSimulator>(
+          pbve::test::icosphere(2, 0.06, Eigen::Vector3d(0, 0, 1)), std::vector<int>{0}, p);
+    };
+    c.steps = 10;
+    EXPECT_TRUE(pbve::testing::check_layout(c));
+    EXPECT_TRUE(pbve::testing::check_save_restore(c));
+    EXPECT_TRUE(pbve::testing::check_restore_into_clone(c));
+    EXPECT_TRUE(pbve::testing::check_clone(c));
+    EXPECT_TRUE(pbve::testing::check_anchors(c));
+    EXPECT_TRUE(pbve::testing::check_determinism(c));
+    EXPECT_TRUE(pbve::testing::check_large_step(c));
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(Bullet, SimulatorConformance,
                          ::testing::Values(cloth_case(), solid_case(Material::elastic, "elastic"),
                                            solid_case(Material::stiff, "stiff"), rigid_case()),
