@@ -72,9 +72,9 @@ struct Params {
   double pressure = 0.0;
   /// Soft: velocity damping per substep, in [0, 1) (Bullet's kDP).
   double damping = 0.01;
-  /// Friction coefficient of the object, >= 0; a contact's friction is this times the plane's
-  /// (soft: Bullet's kDF, clamped to 1 by Bullet's contact solver; rigid: btCollisionObject
-  /// friction).
+  /// Friction coefficient of the object, >= 0; a contact's friction is this times the plane's.
+  /// Soft contacts cap the product at 1 (Bullet's soft contact sticks there); rigid contacts use
+  /// Bullet's product of the two bodies' frictions.
   double friction = 1.0;
   /// Soft: position solver iterations per substep (>= 1).
   int position_iterations = 4;
