@@ -130,6 +130,26 @@ TEST(BulletRigid, ComesToRestOnTheGroundWithinTheMargin) {
   EXPECT_LT(x.col(1).maxCoeff() - x.col(1).minCoeff() - 0.1, p.collision_margin);
 }
 
+TEST(BulletRigid, TouchingPiecesStayStackedOnTheGround) {
+  // Two cubes sharing a face plane (as the pieces of a fractured object do), the lower one on
+  // the ground: both stay where they are.
+  Params p = rigid();
+  const double ground = 0.2;
+  p.planes.push_back(pbve::test::ground_at(ground));
+  const pbve::Mesh stack = pbve::test::join(cube(ground - 0.1), cube(ground - 0.2));
+  BulletSimulator sim(stack, {}, p);
+  ASSERT_EQ(sim.num_bodies(), 2);
+  const Vertices x0 = sim.positions();
+  pbve::StepInput in;
+  for (int k = 0; k < 60; ++k) sim.step(in);
+  const Vertices x = sim.positions();
+  // Each contact settles within the margin; two contacts in series, and no sliding or tipping
+  // beyond that.
+  for (Eigen::Index i = 0; i < x.rows(); ++i)
+    EXPECT_LT((x.row(i) - x0.row(i)).norm(), 2 * p.collision_margin) << "vertex " << i;
+  EXPECT_LT(sim.velocities().rowwise().norm().maxCoeff(), 9.81 * in.dt / p.substeps);
+}
+
 TEST(BulletRigid, PiecesAreSeparateBodiesAndAnchoredOnesFollowTheirTargets) {
   const pbve::Mesh m = pbve::test::join(cube(0.0), cube(0.0));
   pbve::Mesh two = m;
