@@ -142,7 +142,9 @@ struct BulletSimulator::Impl {
   std::unique_ptr<btDbvtBroadphase> broadphase;
   std::unique_ptr<btSequentialImpulseConstraintSolver> solver;
   std::unique_ptr<btSoftRigidDynamicsWorld> world;
-  std::vector<std::unique_ptr<btCollisionShape>> shapes;
+  std::vector<std::unique_ptr<btCollisionShape>> shapes;  // the planes' boxes
+  // Rigid: the pieces' hulls. Shapes are not modified by a simulation, so clones share them.
+  std::vector<std::shared_ptr<btConvexHullShape>> hulls;
   std::vector<std::unique_ptr<btRigidBody>> planes;
   std::unique_ptr<btSoftBody> soft;
   std::vector<std::unique_ptr<btRigidBody>> bodies;
@@ -158,13 +160,15 @@ struct BulletSimulator::Impl {
   Vertices phys;
   Eigen::VectorXd phys_norm;
 
-  explicit Impl(std::shared_ptr<const Recipe> r);
+  /// Builds the world of `r`; `like` (an Impl of the same recipe) lends its rigid pieces.
+  explicit Impl(std::shared_ptr<const Recipe> r, const Impl* like = nullptr);
   ~Impl();
 
   void build_world();
   void add_planes();
   void build_soft();
-  void build_rigid();
+  void build_pieces();
+  void build_rigid(const Impl* like);
   void normalize();
   void step(const StepInput& in);
   Vertices positions() const;
@@ -175,7 +179,8 @@ struct BulletSimulator::Impl {
   size_t state_size() const;
 };
 
-BulletSimulator::Impl::Impl(std::shared_ptr<const Recipe> r) : recipe(std::move(r)) {
+BulletSimulator::Impl::Impl(std::shared_ptr<const Recipe> r, const Impl* like)
+    : recipe(std::move(r)) {
   const Recipe& rc = *recipe;
   num_vertices = static_cast<int>(rc.rest.rows());
   rigid = rc.params.material == Material::rigid;
@@ -186,7 +191,7 @@ BulletSimulator::Impl::Impl(std::shared_ptr<const Recipe> r) : recipe(std::move(
   build_world();
   add_planes();
   if (rigid)
-    build_rigid();
+    build_rigid(like);
   else
     build_soft();
 }
@@ -206,6 +211,7 @@ BulletSimulator::Impl::~Impl() {
   bodies.clear();
   planes.clear();
   shapes.clear();
+  hulls.clear();
 }
 
 void BulletSimulator::Impl::build_world() {
@@ -353,7 +359,7 @@ void BulletSimulator::Impl::build_soft() {
   world->addSoftBody(soft.get());
 }
 
-void BulletSimulator::Impl::build_rigid() {
+void BulletSimulator::Impl::build_pieces() {
   const Recipe& rc = *recipe;
   const Params& p = rc.params;
   const int n = num_vertices;
@@ -398,10 +404,6 @@ void BulletSimulator::Impl::build_rigid() {
     if (pc < 0) continue;
     pieces[static_cast<size_t>(pc)].anchor_rows.push_back(static_cast<int>(i));
   }
-  anchor_pos.resize(static_cast<Eigen::Index>(rc.anchors.size()), 3);
-  for (size_t i = 0; i < rc.anchors.size(); ++i)
-    anchor_pos.row(static_cast<Eigen::Index>(i)) = rc.rest.row(rc.anchors[i]);
-
   for (size_t b = 0; b < pieces.size(); ++b) {
     Piece& pc = pieces[b];
     const VolumeIntegrals vi = volume_integrals(rc.rest, piece_tris[b]);
@@ -420,7 +422,7 @@ void BulletSimulator::Impl::build_rigid() {
     pc.rotation0 = r;
     pc.center0 = vi.center;
     pc.local.resize(static_cast<Eigen::Index>(pc.vertices.size()), 3);
-    auto shape = std::make_unique<btConvexHullShape>();
+    auto shape = std::make_shared<btConvexHullShape>();
     for (size_t k = 0; k < pc.vertices.size(); ++k) {
       const Vector3d l = r.transpose() * (rc.rest.row(pc.vertices[k]).transpose() - vi.center);
       pc.local.row(static_cast<Eigen::Index>(k)) = l.transpose();
@@ -436,10 +438,29 @@ void BulletSimulator::Impl::build_rigid() {
       const auto it = std::find(pc.vertices.begin(), pc.vertices.end(), v);
       pc.anchor_local.push_back(static_cast<int>(it - pc.vertices.begin()));
     }
+    hulls.push_back(std::move(shape));
+  }
+}
+
+void BulletSimulator::Impl::build_rigid(const Impl* like) {
+  const Recipe& rc = *recipe;
+  const Params& p = rc.params;
+  if (like) {
+    pieces = like->pieces;
+    vertex_piece = like->vertex_piece;
+    hulls = like->hulls;
+  } else {
+    build_pieces();
+  }
+  anchor_pos.resize(static_cast<Eigen::Index>(rc.anchors.size()), 3);
+  for (size_t i = 0; i < rc.anchors.size(); ++i)
+    anchor_pos.row(static_cast<Eigen::Index>(i)) = rc.rest.row(rc.anchors[i]);
+  for (size_t b = 0; b < pieces.size(); ++b) {
+    const Piece& pc = pieces[b];
     const bool kinematic = !pc.anchor_rows.empty();
-    btRigidBody::btRigidBodyConstructionInfo ci(kinematic ? 0.0 : pc.mass, nullptr, shape.get(),
+    btRigidBody::btRigidBodyConstructionInfo ci(kinematic ? 0.0 : pc.mass, nullptr, hulls[b].get(),
                                                 kinematic ? btVector3(0, 0, 0) : to_bt(pc.inertia));
-    ci.m_startWorldTransform = btTransform(to_bt_matrix(r), to_bt(vi.center));
+    ci.m_startWorldTransform = btTransform(to_bt_matrix(pc.rotation0), to_bt(pc.center0));
     ci.m_friction = p.friction;
     ci.m_restitution = p.restitution;
     ci.m_linearDamping = p.linear_damping;
@@ -450,7 +471,6 @@ void BulletSimulator::Impl::build_rigid() {
                               btCollisionObject::CF_KINEMATIC_OBJECT);
     body->setActivationState(DISABLE_DEACTIVATION);
     world->addRigidBody(body.get());
-    shapes.push_back(std::move(shape));
     bodies.push_back(std::move(body));
   }
 }
@@ -817,7 +837,7 @@ void BulletSimulator::restore(const SimState& state) {
 
 std::unique_ptr<Simulator> BulletSimulator::clone() const {
   std::unique_ptr<BulletSimulator> copy(new BulletSimulator());
-  copy->m_impl = std::make_unique<Impl>(m_impl->recipe);
+  copy->m_impl = std::make_unique<Impl>(m_impl->recipe, m_impl.get());
   copy->m_impl->restore(m_impl->save());
   copy->m_impl->phys = m_impl->phys;
   copy->m_impl->phys_norm = m_impl->phys_norm;
