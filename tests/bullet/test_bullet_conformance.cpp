@@ -5,6 +5,7 @@
 
 #include "bullet/scenes.hpp"
 #include "pbve/bullet/bullet.hpp"
+#include "pbve/edit/synth.hpp"
 #include "pbve/testing/simulator_conformance.hpp"
 
 namespace {
@@ -108,6 +109,33 @@ TEST(BulletPresets, ReplayCloneAndAnchorsAreExact) {
     EXPECT_TRUE(pbve::testing::check_determinism(c));
     EXPECT_TRUE(pbve::testing::check_large_step(c));
   }
+}
+
+// A concave piece (triangle-mesh contacts, btGImpactMeshShape), anchored, with a cube falling
+// into its notch: replay and clones stay exact.
+TEST(BulletPresets, ConcavePieceReplaysExactly) {
+  ConformanceCase c;
+  c.name = "concave";
+  c.make = [] {
+    std::vector<Eigen::Vector3i> cells;
+    for (int k = 0; k < 2; ++k) {
+      for (int i = 0; i < 3; ++i) cells.emplace_back(i, 1, k);
+      cells.emplace_back(0, 0, k);
+      cells.emplace_back(2, 0, k);
+    }
+    pbve::Mesh cube = pbve::make_box_mesh(0.025, 0.025, 0.025);
+    cube.vertices.rowwise() += Eigen::RowVector3d(0, -0.03, 1.0);
+    const pbve::Mesh scene = pbve::test::join(
+        pbve::test::voxel_mesh(cells, 0.04, Eigen::Vector3d(-0.06, 0.0, 0.96)), cube);
+    return std::make_unique<BulletSimulator>(scene, std::vector<int>{0},
+                                             Params::preset(Material::rigid));
+  };
+  c.steps = 10;
+  EXPECT_TRUE(pbve::testing::check_save_restore(c));
+  EXPECT_TRUE(pbve::testing::check_restore_into_clone(c));
+  EXPECT_TRUE(pbve::testing::check_clone(c));
+  EXPECT_TRUE(pbve::testing::check_anchors(c));
+  EXPECT_TRUE(pbve::testing::check_determinism(c));
 }
 
 // Clones stepped concurrently (as the optimizer's parallel central differences do; rigid clones

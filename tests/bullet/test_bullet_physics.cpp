@@ -150,6 +150,46 @@ TEST(BulletRigid, TouchingPiecesStayStackedOnTheGround) {
   EXPECT_LT(sim.velocities().rowwise().norm().maxCoeff(), 9.81 * in.dt / p.substeps);
 }
 
+// A U-shaped piece open upwards (-y) on the ground, 4 cm cells: two walls on a floor, the
+// notch between them 4 cm wide and deep. Concave, so it collides as its triangle mesh.
+pbve::Mesh u_shape(double ground) {
+  const double cell = 0.04;
+  std::vector<Eigen::Vector3i> cells;
+  for (int k = 0; k < 2; ++k) {
+    for (int i = 0; i < 3; ++i) cells.emplace_back(i, 1, k);  // floor
+    cells.emplace_back(0, 0, k);                              // walls
+    cells.emplace_back(2, 0, k);
+  }
+  return pbve::test::voxel_mesh(cells, cell, Vector3d(-0.06, ground - 2 * cell, 0.96));
+}
+
+TEST(BulletRigid, ConcavePieceCatchesACubeInItsNotch) {
+  const double ground = 0.2;
+  Params p = rigid();
+  p.planes.push_back(pbve::test::ground_at(ground));
+  // A 2.5 cm cube 2 cm above the notch, centred on it.
+  pbve::Mesh small = pbve::make_box_mesh(0.025, 0.025, 0.025);
+  const double rim = ground - 0.08;  // the top of the walls
+  small.vertices.rowwise() += Eigen::RowVector3d(0, rim - 0.02 - 0.025, 1.0);
+  const pbve::Mesh scene = pbve::test::join(u_shape(ground), small);
+  BulletSimulator sim(scene, {}, p);
+  ASSERT_EQ(sim.num_bodies(), 2);
+  EXPECT_NEAR(sim.masses()(0), 1000.0 * 10 * 0.04 * 0.04 * 0.04, 1e-9);  // ten cells
+  pbve::StepInput in;
+  for (int k = 0; k < 45; ++k) sim.step(in);
+  const Vertices x = sim.positions();
+  const int nu = u_shape(ground).num_vertices();
+  // Triangle-mesh contacts are found by GJK between the cube's hull and each triangle, both
+  // inflated by the collision margin: the U rests one margin above the ground, and the cube two
+  // margins above the floor of the notch, 4 cm below the U's rim (its hull would have held the
+  // cube on the rim, 4 cm higher). The contact solver's residual stays within one margin.
+  const double m = p.collision_margin;
+  const double u_bottom = x.topRows(nu).col(1).maxCoeff();
+  EXPECT_NEAR(u_bottom, ground - m, m);
+  const double notch_floor = u_bottom - 0.04;
+  EXPECT_NEAR(x.bottomRows(8).col(1).maxCoeff(), notch_floor - 2 * m, m);
+}
+
 TEST(BulletRigid, PiecesAreSeparateBodiesAndAnchoredOnesFollowTheirTargets) {
   const pbve::Mesh m = pbve::test::join(cube(0.0), cube(0.0));
   pbve::Mesh two = m;

@@ -10,6 +10,10 @@
 #include <utility>
 
 #include <BulletCollision/CollisionShapes/btConvexHullShape.h>
+#include <BulletCollision/CollisionShapes/btConvexPolyhedron.h>
+#include <BulletCollision/CollisionShapes/btTriangleIndexVertexArray.h>
+#include <BulletCollision/Gimpact/btGImpactCollisionAlgorithm.h>
+#include <BulletCollision/Gimpact/btGImpactShape.h>
 #include <BulletSoftBody/btSoftBody.h>
 #include <BulletSoftBody/btSoftBodyRigidBodyCollisionConfiguration.h>
 #include <BulletSoftBody/btSoftRigidDynamicsWorld.h>
@@ -106,7 +110,27 @@ struct Piece {
   std::vector<int> anchor_rows;   // rows of the anchor list that belong to this piece
   std::vector<int> anchor_local;  // their row in `local`
   double radius2 = 0.0;           // squared extent about the centre, m^2
+  bool concave = false;           // collides as its triangle mesh rather than its hull
+  std::vector<double> mesh_xyz;   // concave: body-frame vertices, x y z per vertex
+  std::vector<int> mesh_tris;     // concave: triangles, indices into mesh_xyz's vertices
 };
+
+/// Volume of a convex polyhedron (Bullet's polyhedral features of a hull), m^3.
+double hull_volume(const btConvexPolyhedron& poly) {
+  btVector3 c(0, 0, 0);
+  for (int i = 0; i < poly.m_vertices.size(); ++i) c += poly.m_vertices[i];
+  if (poly.m_vertices.size() > 0) c /= static_cast<double>(poly.m_vertices.size());
+  double volume = 0.0;
+  for (int f = 0; f < poly.m_faces.size(); ++f) {
+    const auto& idx = poly.m_faces[f].m_indices;
+    for (int k = 1; k + 1 < idx.size(); ++k) {
+      const btVector3 a = poly.m_vertices[idx[0]] - c, b = poly.m_vertices[idx[k]] - c,
+                      d = poly.m_vertices[idx[k + 1]] - c;
+      volume += std::abs(a.dot(b.cross(d))) / 6.0;
+    }
+  }
+  return volume;
+}
 
 /// Rotation R (and t) of the least-squares rigid fit R p + t ~ q; `prior` regularizes the
 /// directions the points do not determine (fewer than three non-collinear points).
@@ -145,6 +169,10 @@ struct BulletSimulator::Impl {
   std::vector<std::unique_ptr<btCollisionShape>> shapes;  // the planes' boxes
   // Rigid: the pieces' hulls. Shapes are not modified by a simulation, so clones share them.
   std::vector<std::shared_ptr<btConvexHullShape>> hulls;
+  // Rigid, concave pieces: their triangle meshes (GImpact shapes keep per-query state, so each
+  // world has its own).
+  std::vector<std::unique_ptr<btTriangleIndexVertexArray>> mesh_arrays;
+  std::vector<std::unique_ptr<btGImpactMeshShape>> mesh_shapes;
   std::vector<std::unique_ptr<btRigidBody>> planes;
   std::unique_ptr<btSoftBody> soft;
   std::vector<std::unique_ptr<btRigidBody>> bodies;
@@ -212,6 +240,8 @@ BulletSimulator::Impl::~Impl() {
   planes.clear();
   shapes.clear();
   hulls.clear();
+  mesh_shapes.clear();
+  mesh_arrays.clear();
 }
 
 void BulletSimulator::Impl::build_world() {
@@ -226,6 +256,7 @@ void BulletSimulator::Impl::build_world() {
   solver = std::make_unique<btSequentialImpulseConstraintSolver>();
   world = std::make_unique<btSoftRigidDynamicsWorld>(dispatcher.get(), broadphase.get(),
                                                      solver.get(), config.get());
+  btGImpactCollisionAlgorithm::registerAlgorithm(dispatcher.get());
   const Params& p = recipe->params;
   world->setGravity(to_bt(p.gravity));
   btSoftBodyWorldInfo& info = world->getWorldInfo();
@@ -433,6 +464,18 @@ void BulletSimulator::Impl::build_pieces() {
     shape->optimizeConvexHull();
     shape->setMargin(p.collision_margin);
     shape->initializePolyhedralFeatures();
+    const btConvexPolyhedron* poly = shape->getConvexPolyhedron();
+    if (poly && hull_volume(*poly) > (1.0 + p.hull_tolerance) * vi.volume) {
+      pc.concave = true;
+      std::map<int, int> local_index;
+      for (size_t k = 0; k < pc.vertices.size(); ++k) {
+        local_index[pc.vertices[k]] = static_cast<int>(k);
+        for (int c = 0; c < 3; ++c)
+          pc.mesh_xyz.push_back(pc.local(static_cast<Eigen::Index>(k), c));
+      }
+      for (const auto& tri : piece_tris[b])
+        for (int c = 0; c < 3; ++c) pc.mesh_tris.push_back(local_index.at(tri(c)));
+    }
     for (int row : pc.anchor_rows) {
       const int v = rc.anchors[static_cast<size_t>(row)];
       const auto it = std::find(pc.vertices.begin(), pc.vertices.end(), v);
@@ -456,9 +499,21 @@ void BulletSimulator::Impl::build_rigid(const Impl* like) {
   for (size_t i = 0; i < rc.anchors.size(); ++i)
     anchor_pos.row(static_cast<Eigen::Index>(i)) = rc.rest.row(rc.anchors[i]);
   for (size_t b = 0; b < pieces.size(); ++b) {
-    const Piece& pc = pieces[b];
+    Piece& pc = pieces[b];
     const bool kinematic = !pc.anchor_rows.empty();
-    btRigidBody::btRigidBodyConstructionInfo ci(kinematic ? 0.0 : pc.mass, nullptr, hulls[b].get(),
+    btCollisionShape* shape = hulls[b].get();
+    if (pc.concave) {
+      auto array = std::make_unique<btTriangleIndexVertexArray>(
+          static_cast<int>(pc.mesh_tris.size() / 3), pc.mesh_tris.data(), 3 * sizeof(int),
+          static_cast<int>(pc.mesh_xyz.size() / 3), pc.mesh_xyz.data(), 3 * sizeof(double));
+      auto mesh = std::make_unique<btGImpactMeshShape>(array.get());
+      mesh->setMargin(p.collision_margin);
+      mesh->updateBound();
+      shape = mesh.get();
+      mesh_arrays.push_back(std::move(array));
+      mesh_shapes.push_back(std::move(mesh));
+    }
+    btRigidBody::btRigidBodyConstructionInfo ci(kinematic ? 0.0 : pc.mass, nullptr, shape,
                                                 kinematic ? btVector3(0, 0, 0) : to_bt(pc.inertia));
     ci.m_startWorldTransform = btTransform(to_bt_matrix(pc.rotation0), to_bt(pc.center0));
     ci.m_friction = p.friction;

@@ -98,6 +98,7 @@ void Params::validate() const {
   fraction(linear_damping, "linear_damping", true, true);
   fraction(angular_damping, "angular_damping", true, true);
   fraction(restitution, "restitution", true, true);
+  non_negative(hull_tolerance, "hull_tolerance");
   if (!gravity.allFinite()) throw std::invalid_argument("bullet: parameter gravity must be finite");
   if (substeps < 1) bad("substeps", "at least 1", substeps);
   for (size_t i = 0; i < planes.size(); ++i) {

@@ -148,6 +148,8 @@ std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
       field = &p.angular_damping;
     else if (key == "restitution")
       field = &p.restitution;
+    else if (key == "hull_tolerance")
+      field = &p.hull_tolerance;
     else if (key == "position_iterations")
       int_field = &p.position_iterations;
     if (!field && !int_field) {
@@ -196,19 +198,10 @@ std::vector<std::string> engine_parameters(const std::string& engine) {
             "damping_alpha",     "damping_beta",      "contact_stiffness", "friction_velocity",
             "newton_iterations", "newton_tolerance"};
   if (engine == "bullet")
-    return {"density",
-            "linear_stiffness",
-            "bending_stiffness",
-            "shape_matching",
-            "volume_stiffness",
-            "pressure",
-            "damping",
-            "friction",
-            "collision_margin",
-            "linear_damping",
-            "angular_damping",
-            "restitution",
-            "position_iterations"};
+    return {"density",          "linear_stiffness",   "bending_stiffness", "shape_matching",
+            "volume_stiffness", "pressure",           "damping",           "friction",
+            "collision_margin", "linear_damping",     "angular_damping",   "restitution",
+            "hull_tolerance",   "position_iterations"};
   return {};
 }
 

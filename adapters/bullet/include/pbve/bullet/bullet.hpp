@@ -87,6 +87,10 @@ struct Params {
   double angular_damping = 0.0;
   /// Rigid: coefficient of restitution of contacts, in [0, 1].
   double restitution = 0.0;
+  /// Rigid: a piece whose convex hull exceeds its volume by more than this fraction (>= 0) is
+  /// concave and collides as its triangle mesh (btGImpactMeshShape); the others collide as
+  /// their hulls, which is cheaper and steadier. A large value makes every piece a hull.
+  double hull_tolerance = 0.05;
   /// Gravitational acceleration, m/s^2, camera frame (+y is down in the image).
   Eigen::Vector3d gravity{0.0, 9.81, 0.0};
   /// Bullet steps per step() (>= 1); each is one stepSimulation() of dt / substeps.
@@ -119,7 +123,7 @@ struct Params {
 /// anchored vertex is kinematic: each substep it takes the rigid transform that best fits its
 /// anchors' interpolated targets (least squares); its anchored vertices are reported exactly at
 /// their targets, its other vertices follow the fitted transform, and its control block is
-/// ignored. Pieces collide as their convex hulls.
+/// ignored. Convex pieces collide as their hulls, concave ones as their triangle meshes.
 ///
 /// Exact replay: every step() starts from a normalized world (all objects removed and re-added
 /// in a fixed order, broadphase reset, so no pair or contact manifold survives from an earlier
