@@ -11,5 +11,6 @@ find_package(yaml-cpp REQUIRED)
 # Report files (JSON): nlohmann-json3-dev, header-only.
 find_package(nlohmann_json 3 REQUIRED)
 if(PBVE_WITH_BULLET)
-  pkg_check_modules(BULLET REQUIRED IMPORTED_TARGET bullet)
+  # Double precision: pbve state is double, and save/restore must not round it.
+  pkg_check_modules(BULLET REQUIRED IMPORTED_TARGET bullet-float64)
 endif()

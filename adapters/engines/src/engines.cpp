@@ -7,6 +7,9 @@
 #ifdef PBVE_ENGINE_MASS_SPRING
 #include "pbve/mass_spring/mass_spring.hpp"
 #endif
+#ifdef PBVE_ENGINE_BULLET
+#include "pbve/bullet/bullet.hpp"
+#endif
 
 namespace pbve {
 
@@ -95,6 +98,86 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
 }
 #endif
 
+#ifdef PBVE_ENGINE_BULLET
+std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
+  namespace bt = bullet;
+  const SceneSimulation& s = r.simulation;
+  bt::Material material;
+  try {
+    material = bt::material_from_string(s.material);
+  } catch (const std::invalid_argument& e) {
+    fail_key(r, "material", 0, e.what());
+  }
+  bt::Params p = bt::Params::preset(material);
+  p.gravity = s.gravity;
+  p.substeps = s.substeps;
+  auto plane = [](const ScenePlane& q) {
+    bt::Plane out;
+    out.point = q.point;
+    out.normal = q.normal;
+    out.friction = q.friction;
+    return out;
+  };
+  if (s.ground) p.planes.push_back(plane(*s.ground));
+  for (const auto& q : s.planes) p.planes.push_back(plane(q));
+  for (const auto& [key, value_line] : s.parameters) {
+    const auto [value, line] = value_line;
+    double* field = nullptr;
+    int* int_field = nullptr;
+    if (key == "density")
+      field = &p.density;
+    else if (key == "linear_stiffness")
+      field = &p.linear_stiffness;
+    else if (key == "bending_stiffness")
+      field = &p.bending_stiffness;
+    else if (key == "shape_matching")
+      field = &p.shape_matching;
+    else if (key == "volume_stiffness")
+      field = &p.volume_stiffness;
+    else if (key == "pressure")
+      field = &p.pressure;
+    else if (key == "damping")
+      field = &p.damping;
+    else if (key == "friction")
+      field = &p.friction;
+    else if (key == "collision_margin")
+      field = &p.collision_margin;
+    else if (key == "linear_damping")
+      field = &p.linear_damping;
+    else if (key == "angular_damping")
+      field = &p.angular_damping;
+    else if (key == "restitution")
+      field = &p.restitution;
+    else if (key == "hull_tolerance")
+      field = &p.hull_tolerance;
+    else if (key == "position_iterations")
+      int_field = &p.position_iterations;
+    if (!field && !int_field) {
+      const auto names = engine_parameters("bullet");
+      std::string msg = "unknown key for engine bullet";
+      const std::string near = nearest_key(key, names);
+      if (!near.empty()) msg += " (did you mean '" + near + "'?)";
+      msg += "; material parameters:";
+      for (const auto& n : names) msg += " " + n;
+      fail_key(r, key, line, msg);
+    }
+    if (field) *field = value;
+    if (int_field) {
+      if (value != static_cast<int>(value)) fail_key(r, key, line, "expected an integer");
+      *int_field = static_cast<int>(value);
+    }
+  }
+  try {
+    p.validate();
+    return std::make_unique<bt::BulletSimulator>(r.mesh, r.rest_positions, r.anchors, p);
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::invalid_argument& e) {
+    throw InputError(e.what(), r.scene_file);
+  }
+}
+#endif
+
 }  // namespace
 
 std::vector<std::string> available_engines() {
@@ -114,12 +197,20 @@ std::vector<std::string> engine_parameters(const std::string& engine) {
             "layer_stiffness",   "layer_distance",    "volume_stiffness",  "lattice_spacing",
             "damping_alpha",     "damping_beta",      "contact_stiffness", "friction_velocity",
             "newton_iterations", "newton_tolerance"};
+  if (engine == "bullet")
+    return {"density",          "linear_stiffness",   "bending_stiffness", "shape_matching",
+            "volume_stiffness", "pressure",           "damping",           "friction",
+            "collision_margin", "linear_damping",     "angular_damping",   "restitution",
+            "hull_tolerance",   "position_iterations"};
   return {};
 }
 
 std::unique_ptr<Simulator> make_engine(const EngineRecipe& r) {
 #ifdef PBVE_ENGINE_MASS_SPRING
   if (r.simulation.engine == "mass_spring") return make_mass_spring(r);
+#endif
+#ifdef PBVE_ENGINE_BULLET
+  if (r.simulation.engine == "bullet") return make_bullet(r);
 #endif
   std::string have;
   for (const auto& e : available_engines()) have += (have.empty() ? "" : ", ") + e;

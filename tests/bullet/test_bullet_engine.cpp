@@ -1,0 +1,116 @@
+// `simulation: engine: bullet` through pbve::make_engine: every material, parameter overrides,
+// and clear errors for unknown parameters.
+
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "bullet/scenes.hpp"
+#include "pbve/bullet/bullet.hpp"
+#include "pbve/core/error.hpp"
+#include "pbve/engines.hpp"
+
+namespace {
+
+using pbve::EngineRecipe;
+using pbve::InputError;
+
+// A scene whose simulation section is `simulation` (YAML lines, indented by two spaces).
+pbve::Scene scene_with(const std::string& simulation) {
+  return pbve::parse_scene(
+      "input: {image: p.png, frames: 3}\ncamera: {fx: 600, fy: 600, cx: 320, cy: 240}\n"
+      "object: {mesh: m.obj, poses: p.txt}\noutput: {video: o.mkv}\nsimulation:\n" +
+          simulation,
+      "/scenes/s.yaml");
+}
+
+EngineRecipe recipe(const pbve::Scene& scene, const pbve::Mesh& mesh, std::vector<int> anchors) {
+  EngineRecipe r;
+  r.simulation = scene.simulation;
+  r.mesh = mesh;
+  r.rest_positions = mesh.vertices;
+  r.anchors = std::move(anchors);
+  r.scene_file = "/scenes/s.yaml";
+  return r;
+}
+
+TEST(BulletEngine, IsAvailable) {
+  const auto engines = pbve::available_engines();
+  EXPECT_NE(std::find(engines.begin(), engines.end(), "bullet"), engines.end());
+  const auto keys = pbve::engine_parameters("bullet");
+  EXPECT_NE(std::find(keys.begin(), keys.end(), "linear_stiffness"), keys.end());
+  EXPECT_NE(std::find(keys.begin(), keys.end(), "position_iterations"), keys.end());
+}
+
+TEST(BulletEngine, BuildsEveryMaterialFromAScene) {
+  const pbve::Mesh cloth = pbve::test::grid_mesh(5, 0.2);
+  const pbve::Mesh ball = pbve::test::icosphere(1, 0.05, Eigen::Vector3d(0, 0, 1));
+  for (const char* material : {"cloth", "elastic", "stiff", "rigid"}) {
+    SCOPED_TRACE(material);
+    const pbve::Scene s = scene_with(std::string("  engine: bullet\n  material: ") + material +
+                                     "\n  substeps: 4\n  ground: {point: [0, 0.3, 0], normal: "
+                                     "[0, -1, 0]}\n");
+    const bool is_cloth = std::string(material) == "cloth";
+    auto sim = pbve::make_engine(recipe(s, is_cloth ? cloth : ball, {0}));
+    ASSERT_TRUE(sim);
+    EXPECT_EQ(sim->name(), "bullet");
+    auto* b = dynamic_cast<pbve::bullet::BulletSimulator*>(sim.get());
+    ASSERT_NE(b, nullptr);
+    EXPECT_EQ(b->params().substeps, 4);
+    ASSERT_EQ(b->params().planes.size(), 1u);
+    EXPECT_EQ(pbve::bullet::to_string(b->params().material), material);
+    EXPECT_EQ(sim->control_layout().space, std::string(material) == "rigid"
+                                               ? pbve::ControlSpace::body_wrench
+                                               : pbve::ControlSpace::vertex_force);
+    pbve::StepInput in;
+    sim->step(in);
+    EXPECT_TRUE(sim->positions().allFinite());
+  }
+}
+
+TEST(BulletEngine, ParameterOverridesReachTheSimulator) {
+  const pbve::Scene s = scene_with(
+      "  engine: bullet\n  material: elastic\n  linear_stiffness: 0.5\n  pressure: 300\n"
+      "  position_iterations: 12\n");
+  auto sim =
+      pbve::make_engine(recipe(s, pbve::test::icosphere(1, 0.05, Eigen::Vector3d(0, 0, 1)), {0}));
+  const auto& p = dynamic_cast<pbve::bullet::BulletSimulator&>(*sim).params();
+  EXPECT_EQ(p.linear_stiffness, 0.5);
+  EXPECT_EQ(p.pressure, 300.0);
+  EXPECT_EQ(p.position_iterations, 12);
+  // Untouched fields keep the elastic preset.
+  EXPECT_EQ(p.volume_stiffness,
+            pbve::bullet::Params::preset(pbve::bullet::Material::elastic).volume_stiffness);
+}
+
+std::string error_of(const std::string& simulation, const pbve::Mesh& mesh) {
+  try {
+    pbve::make_engine(recipe(scene_with(simulation), mesh, {0}));
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+TEST(BulletEngine, UnknownParameterNamesTheKeyAndTheNearestOne) {
+  const std::string msg = error_of("  engine: bullet\n  material: cloth\n  linear_stifness: 0.5\n",
+                                   pbve::test::grid_mesh(4, 0.2));
+  EXPECT_NE(msg.find("s.yaml"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("simulation.linear_stifness"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("did you mean 'linear_stiffness'"), std::string::npos) << msg;
+  // The line of the offending key (line 8 of the scene text).
+  EXPECT_NE(msg.find("s.yaml:8"), std::string::npos) << msg;
+}
+
+TEST(BulletEngine, InvalidValuesAreInputErrors) {
+  const pbve::Mesh grid = pbve::test::grid_mesh(4, 0.2);
+  std::string msg = error_of("  engine: bullet\n  material: cloth\n  linear_stiffness: 2\n", grid);
+  EXPECT_NE(msg.find("linear_stiffness"), std::string::npos) << msg;
+  msg = error_of("  engine: bullet\n  material: cloth\n  position_iterations: 2.5\n", grid);
+  EXPECT_NE(msg.find("expected an integer"), std::string::npos) << msg;
+  // An open sheet has no volume to keep.
+  msg = error_of("  engine: bullet\n  material: elastic\n", grid);
+  EXPECT_NE(msg.find("closed mesh"), std::string::npos) << msg;
+}
+
+}  // namespace
