@@ -105,44 +105,80 @@ class WindowProblem {
   const ControlLayout& layout() const { return m_layout; }
   int frames() const { return m_frames; }
   int size() const { return m_size; }
-  int num_variables() const { return m_frames * static_cast<int>(m_active.size()) * m_bs; }
+  int num_variables() const { return m_frames * m_nv; }
+  int variables_per_frame() const { return m_nv; }
   const SimState& state0() const { return m_state0; }
   const std::vector<std::uint8_t>& penalized(int k) const {
     return m_penalized[static_cast<size_t>(k)];
   }
   const Eigen::VectorXd& previous() const { return m_previous; }
 
+  // One variable per component of every active block, in units of the block's weight.
   void set_active(std::vector<int> active) {
     m_active = std::move(active);
-    const int na = static_cast<int>(m_active.size());
-    m_scale.resize(na * m_bs);
-    for (int a = 0; a < na; ++a)
+    m_columns.clear();
+    for (int b : m_active)
       for (int c = 0; c < m_bs; ++c)
-        m_scale[a * m_bs + c] = m_layout.block_mass[m_active[static_cast<size_t>(a)]] *
-                                kStandardGravity * (c < 3 ? 1.0 : m_options.torque_arm);
+        m_columns.push_back({{b * m_bs + c, m_layout.block_mass[b] * kStandardGravity *
+                                                (c < 3 ? 1.0 : m_options.torque_arm)}});
+    m_nv = static_cast<int>(m_columns.size());
+  }
+  // Reduced control space (vertex forces): variable 3 c + d is the acceleration along axis d,
+  // in units of g0, shared by the active blocks of cluster c (block b receives m_b g0 z).
+  void set_clusters(std::vector<int> active, const std::vector<int>& cluster, int clusters) {
+    m_active = std::move(active);
+    m_columns.assign(static_cast<size_t>(3 * clusters), {});
+    for (size_t a = 0; a < m_active.size(); ++a) {
+      const int b = m_active[a];
+      for (int d = 0; d < 3; ++d)
+        m_columns[static_cast<size_t>(3 * cluster[a] + d)].push_back(
+            {b * 3 + d, m_layout.block_mass[b] * kStandardGravity});
+    }
+    m_nv = static_cast<int>(m_columns.size());
   }
   void set_fixed(const Eigen::VectorXd& u) {
     for (int k = 0; k < m_frames; ++k)
       m_fixed[static_cast<size_t>(k)] = u.segment(k * m_size, m_size);
   }
-  // Component index in a frame's control vector of variable i (within one frame).
-  int component(int i) const { return m_active[static_cast<size_t>(i / m_bs)] * m_bs + i % m_bs; }
-  double scale(int i) const { return m_scale[i % (static_cast<int>(m_active.size()) * m_bs)]; }
+  // Control components moved by variable i of a frame, with their coefficients (du / dz).
+  struct Entry {
+    int component;
+    double coef;
+  };
+  const std::vector<Entry>& column(int i) const { return m_columns[static_cast<size_t>(i)]; }
+  // d/dz_i of a function with gradient g with respect to one frame's control.
+  double chain(const Eigen::VectorXd& g, int i) const {
+    double out = 0.0;
+    for (const Entry& e : column(i)) out += e.coef * g[e.component];
+    return out;
+  }
+  // Adds h along variable i to a frame's control.
+  void perturb(Eigen::VectorXd& u, int i, double h) const {
+    for (const Entry& e : column(i)) u[e.component] += h * e.coef;
+  }
 
-  // z from full controls (frame-major).
+  // z from full controls (frame-major): per variable, the least-squares fit over its column.
   Eigen::VectorXd to_z(const Eigen::VectorXd& u) const {
-    const int nv = static_cast<int>(m_active.size()) * m_bs;
     Eigen::VectorXd z(num_variables());
     for (int k = 0; k < m_frames; ++k)
-      for (int i = 0; i < nv; ++i) z[k * nv + i] = u[k * m_size + component(i)] / m_scale[i];
+      for (int i = 0; i < m_nv; ++i) {
+        double num = 0.0, den = 0.0;
+        for (const Entry& e : column(i)) {
+          num += e.coef * u[k * m_size + e.component];
+          den += e.coef * e.coef;
+        }
+        z[k * m_nv + i] = den > 0.0 ? num / den : 0.0;
+      }
     return z;
   }
   std::vector<Eigen::VectorXd> expand(const double* z) const {
-    const int nv = static_cast<int>(m_active.size()) * m_bs;
     std::vector<Eigen::VectorXd> u = m_fixed;
-    for (int k = 0; k < m_frames; ++k)
-      for (int i = 0; i < nv; ++i)
-        u[static_cast<size_t>(k)][component(i)] = z[k * nv + i] * m_scale[i];
+    for (int k = 0; k < m_frames; ++k) {
+      Eigen::VectorXd& uk = u[static_cast<size_t>(k)];
+      for (const auto& col : m_columns)
+        for (const Entry& e : col) uk[e.component] = 0.0;
+      for (int i = 0; i < m_nv; ++i) perturb(uk, i, z[k * m_nv + i]);
+    }
     return u;
   }
 
@@ -179,10 +215,10 @@ class WindowProblem {
     return m_options.weights.force * ef + m_options.weights.temporal * et;
   }
 
-  // Simulates frames k0.. from `start` with controls u (frame k0's component `comp` shifted
-  // by `delta` when comp >= 0) on `sim`; returns the sum of EC over those frames.
+  // Simulates frames k0.. from `start` with controls u (frame k0's variable `var` shifted by
+  // `delta` when var >= 0) on `sim`; returns the sum of EC over those frames.
   double probe(Simulator& sim, const SimState& start, int k0, const std::vector<Eigen::VectorXd>& u,
-               int comp, double delta) const {
+               int var, double delta) const {
     sim.restore(start);
     double ec = 0.0;
     StepInput in;
@@ -191,7 +227,7 @@ class WindowProblem {
       in.dt = base.dt;
       in.anchor_targets = base.anchor_targets;
       in.control = u[static_cast<size_t>(k)];
-      if (k == k0 && comp >= 0) in.control[comp] += delta;
+      if (k == k0 && var >= 0) perturb(in.control, var, delta);
       sim.step(in);
       ec += visibility(k, sim.positions(), nullptr);
     }
@@ -241,7 +277,7 @@ class WindowProblem {
     const auto t0 = Clock::now();
     std::vector<Eigen::VectorXd> gu;
     force_terms(u, &gu, nullptr, nullptr);
-    const int nv = static_cast<int>(m_active.size()) * m_bs;
+    const int nv = m_nv;
     const double lc = m_options.weights.visibility;
     if (adjoint) {
       Eigen::VectorXd gs = Eigen::VectorXd::Zero(m_sim.state_dim());
@@ -253,24 +289,22 @@ class WindowProblem {
         gs = std::move(vjp.state);
       }
       for (int k = 0; k < m_frames; ++k)
-        for (int i = 0; i < nv; ++i)
-          grad[k * nv + i] = gu[static_cast<size_t>(k)][component(i)] * m_scale[i];
+        for (int i = 0; i < nv; ++i) grad[k * nv + i] = chain(gu[static_cast<size_t>(k)], i);
     } else {
       const int n = num_variables();
       std::vector<double> ep(static_cast<size_t>(n)), em(static_cast<size_t>(n));
       const double h = m_options.fd_step;
       auto run = [&](Simulator& sim, int q) {
-        const int i = q / 2, k = i / nv, c = component(i % nv);
-        const double delta = h * m_scale[i % nv];
+        const int i = q / 2, k = i / nv;
         const double e =
-            probe(sim, states[static_cast<size_t>(k)], k, u, c, q % 2 == 0 ? delta : -delta);
+            probe(sim, states[static_cast<size_t>(k)], k, u, i % nv, q % 2 == 0 ? h : -h);
         (q % 2 == 0 ? ep : em)[static_cast<size_t>(i)] = e;
       };
       for_each_probe(m_sim, 2 * n, parallel, run);
       for (int i = 0; i < n; ++i) {
         const int k = i / nv;
         const double dec = (ep[static_cast<size_t>(i)] - em[static_cast<size_t>(i)]) / (2.0 * h);
-        grad[i] = gu[static_cast<size_t>(k)][component(i % nv)] * m_scale[i % nv] + lc * dec;
+        grad[i] = chain(gu[static_cast<size_t>(k)], i % nv) + lc * dec;
       }
     }
     m_gradient_ms += ms_since(t0);
@@ -286,14 +320,14 @@ class WindowProblem {
     const std::vector<Eigen::VectorXd> u = expand(z);
     const int m = num_constraints();
     auto values = [&](Simulator& sim, const SimState& start, int k0,
-                      const std::vector<Eigen::VectorXd>& uu, int comp, double delta,
+                      const std::vector<Eigen::VectorXd>& uu, int var, double delta,
                       std::vector<SimState>* states) {
       Eigen::VectorXd out = Eigen::VectorXd::Zero(m);
       sim.restore(start);
       for (int k = k0; k < m_frames; ++k) {
         if (states) states->push_back(sim.save());
         StepInput in = input(k, uu[static_cast<size_t>(k)]);
-        if (k == k0 && comp >= 0) in.control[comp] += delta;
+        if (k == k0 && var >= 0) perturb(in.control, var, delta);
         sim.step(in);
         const Eigen::VectorXd s = facing(k, sim.positions());
         for (int j = 0; j < m; ++j)
@@ -308,14 +342,13 @@ class WindowProblem {
     if (!jac) return;
     const auto t0 = Clock::now();
     const int n = num_variables();
-    const int nv = static_cast<int>(m_active.size()) * m_bs;
+    const int nv = m_nv;
     const double h = m_options.fd_step;
     std::vector<Eigen::VectorXd> cp(static_cast<size_t>(n)), cm(static_cast<size_t>(n));
     auto run = [&](Simulator& sim, int q) {
       const int i = q / 2, k = i / nv;
-      const double delta = h * m_scale[i % nv];
-      Eigen::VectorXd v = values(sim, states[static_cast<size_t>(k)], k, u, component(i % nv),
-                                 q % 2 == 0 ? delta : -delta, nullptr);
+      Eigen::VectorXd v =
+          values(sim, states[static_cast<size_t>(k)], k, u, i % nv, q % 2 == 0 ? h : -h, nullptr);
       // Constraints of earlier frames do not depend on this variable.
       for (int j = 0; j < m; ++j)
         if (m_constraints[static_cast<size_t>(j)].first < k) v[j] = c0[j];
@@ -347,7 +380,8 @@ class WindowProblem {
   std::vector<Eigen::VectorXd> m_fixed;
   SimState m_state0;
   std::vector<int> m_active;
-  Eigen::VectorXd m_scale;
+  std::vector<std::vector<Entry>> m_columns;  // per variable of a frame
+  int m_nv = 0;                               // variables per frame
   std::vector<std::pair<int, int>> m_constraints;
   double m_gradient_ms = 0.0;
   int m_gradients = 0;
@@ -517,6 +551,68 @@ std::vector<int> ControlOptimizer::active_blocks(Simulator& sim,
   return out;
 }
 
+namespace {
+
+/// Groups the active vertex-force blocks into at most `clusters` spatial clusters: farthest-point
+/// seeds on the blocks' current positions, then two Lloyd iterations; empty clusters are
+/// dropped (`used` receives the count). Deterministic: ties go to the lowest index.
+std::vector<int> cluster_blocks(const Simulator& sim, const std::vector<int>& active, int clusters,
+                                int* used) {
+  const ControlLayout layout = sim.control_layout();
+  const Vertices x = sim.positions();
+  Vertices block_pos = Vertices::Zero(layout.num_blocks, 3);
+  Eigen::VectorXd count = Eigen::VectorXd::Zero(layout.num_blocks);
+  for (size_t v = 0; v < layout.vertex_block.size(); ++v)
+    if (const int b = layout.vertex_block[v]; b >= 0) {
+      block_pos.row(b) += x.row(static_cast<Eigen::Index>(v));
+      count[b] += 1.0;
+    }
+  const auto na = static_cast<Eigen::Index>(active.size());
+  Vertices p(na, 3);
+  for (Eigen::Index a = 0; a < na; ++a) {
+    const int b = active[static_cast<size_t>(a)];
+    p.row(a) = block_pos.row(b) / std::max(1.0, count[b]);
+  }
+  // Farthest-point seeds.
+  Vertices centre(clusters, 3);
+  centre.row(0) = p.row(0);
+  Eigen::VectorXd dist = (p.rowwise() - centre.row(0)).rowwise().squaredNorm();
+  for (int c = 1; c < clusters; ++c) {
+    Eigen::Index far = 0;
+    dist.maxCoeff(&far);
+    centre.row(c) = p.row(far);
+    dist = dist.cwiseMin((p.rowwise() - centre.row(c)).rowwise().squaredNorm());
+  }
+  std::vector<int> cluster(active.size(), 0);
+  for (int iter = 0; iter < 3; ++iter) {
+    for (Eigen::Index a = 0; a < na; ++a) {
+      Eigen::Index best = 0;
+      (centre.rowwise() - p.row(a)).rowwise().squaredNorm().minCoeff(&best);
+      cluster[static_cast<size_t>(a)] = static_cast<int>(best);
+    }
+    if (iter == 2) break;
+    Vertices sum = Vertices::Zero(clusters, 3);
+    Eigen::VectorXd n = Eigen::VectorXd::Zero(clusters);
+    for (Eigen::Index a = 0; a < na; ++a) {
+      sum.row(cluster[static_cast<size_t>(a)]) += p.row(a);
+      n[cluster[static_cast<size_t>(a)]] += 1.0;
+    }
+    for (int c = 0; c < clusters; ++c)
+      if (n[c] > 0.0) centre.row(c) = sum.row(c) / n[c];
+  }
+  // Renumber without empty clusters.
+  std::vector<int> id(static_cast<size_t>(clusters), -1);
+  int next = 0;
+  for (int& c : cluster) {
+    if (id[static_cast<size_t>(c)] < 0) id[static_cast<size_t>(c)] = next++;
+    c = id[static_cast<size_t>(c)];
+  }
+  *used = next;
+  return cluster;
+}
+
+}  // namespace
+
 ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
                                              std::span<const ControlFrameInput> window,
                                              const Eigen::VectorXd& u, GradientMode mode,
@@ -548,10 +644,12 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
   out.force_energy = ev.ef;
   out.temporal_energy = ev.et;
   out.gradient = Eigen::VectorXd::Zero(frames * size);
-  const int nv = static_cast<int>(blocks.size()) * problem.layout().block_size();
+  const int nv = problem.variables_per_frame();
   for (int k = 0; k < frames; ++k)
-    for (int i = 0; i < nv; ++i)
-      out.gradient[k * size + problem.component(i)] = gz[k * nv + i] / problem.scale(i);
+    for (int i = 0; i < nv; ++i) {
+      const auto& e = problem.column(i).front();  // one component per variable here
+      out.gradient[k * size + e.component] = gz[k * nv + i] / e.coef;
+    }
   return out;
 }
 
@@ -597,7 +695,14 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
   const int size = problem.size();
   const int bs = problem.layout().block_size();
-  problem.set_active(active);
+  const int clusters = m_options.clusters;
+  if (clusters > 0 && bs == 3 && static_cast<int>(active.size()) > clusters) {
+    int used = 0;
+    const std::vector<int> cluster = cluster_blocks(sim, active, clusters, &used);
+    problem.set_clusters(active, cluster, used);
+  } else {
+    problem.set_active(active);
+  }
   r.active_blocks = static_cast<int>(active.size());
   const int n = problem.num_variables();
   r.variables = n;
@@ -638,11 +743,10 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
         std::vector<Eigen::VectorXd> gu;
         e = problem.force_terms(u, grad ? &gu : nullptr, nullptr, nullptr);
         if (grad) {
-          const int nv = static_cast<int>(active.size()) * bs;
+          const int nv = problem.variables_per_frame();
           for (int k = 0; k < frames; ++k)
             for (int i = 0; i < nv; ++i)
-              grad[k * nv + i] =
-                  gu[static_cast<size_t>(k)][problem.component(i)] * problem.scale(i);
+              grad[k * nv + i] = problem.chain(gu[static_cast<size_t>(k)], i);
         }
       } else {
         e = problem.evaluate(z, grad, adjoint, par).energy;

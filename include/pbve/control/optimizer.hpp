@@ -117,6 +117,14 @@ struct ControlOptions {
   double active_band = 0.3;
   /// Rings of vertex adjacency added around the vertices of at-risk triangles.
   int active_rings = 2;
+  /// Reduced control space for vertex forces: 0 (default) optimizes one force per active
+  /// block; K > 0 groups the active blocks into at most K spatial clusters (farthest-point
+  /// seeds and Lloyd iterations on their current positions) and optimizes one acceleration
+  /// per cluster, each block b of cluster c receiving m_b a_c. That is 3K variables per frame
+  /// instead of 3 x active blocks: central differences then cost 6K simulations per gradient,
+  /// which makes black-box engines practical, at the price of smoother (less sparse) forces.
+  /// Ignored for body wrenches (already 6 numbers per body).
+  int clusters = 0;
   /// Penalize interior triangles (Mesh::interior) like unobserved ones: their texture never
   /// comes from the footage.
   bool penalize_interior = true;
@@ -180,7 +188,7 @@ struct ControlFrameResult {
   int evaluations = 0;           ///< objective evaluations (each one simulates the window)
   int gradient_evaluations = 0;  ///< gradients computed
   int active_blocks = 0;         ///< control blocks optimized (per window frame)
-  int variables = 0;             ///< optimization variables (active_blocks * block size * W)
+  int variables = 0;  ///< optimization variables (active_blocks * block size * W; 3 per cluster)
 
   /// Energy terms of the committed step (first window frame): EC of the positions after the
   /// step, EF and ET of the committed forces; energy = lC EC + lF EF + lT ET.
