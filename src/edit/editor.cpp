@@ -78,6 +78,7 @@ ControlOptions control_options(const SceneControl& c) {
   o.initial_guess = c.warm_start ? InitialGuess::previous : InitialGuess::zero;
   o.barrier.margin = c.margin;
   o.force_bound = c.force_bound;
+  o.clusters = c.clusters;
   return o;
 }
 

@@ -290,7 +290,7 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
     const YAML::Node n = root["control"];
     r.check_map(n, "control",
                 {"enabled", "weights", "window", "solver", "gradient", "active_set",
-                 "max_iterations", "warm_start", "margin", "force_bound"});
+                 "max_iterations", "warm_start", "margin", "force_bound", "clusters"});
     SceneControl& c = s.control;
     for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
     if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
@@ -327,6 +327,10 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
     if (n["margin"]) {
       c.margin = r.number(n["margin"], "control.margin");
       if (c.margin < 0 || c.margin >= 1) r.fail(n["margin"], "control.margin", "must be in [0, 1)");
+    }
+    if (n["clusters"]) {
+      c.clusters = r.integer(n["clusters"], "control.clusters");
+      if (c.clusters < 0) r.fail(n["clusters"], "control.clusters", "must not be negative");
     }
     if (n["force_bound"]) {
       c.force_bound = r.number(n["force_bound"], "control.force_bound");
@@ -433,6 +437,7 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "warm_start" << YAML::Value << c.warm_start;
   e << YAML::Key << "margin" << YAML::Value << c.margin;
   e << YAML::Key << "force_bound" << YAML::Value << c.force_bound;
+  e << YAML::Key << "clusters" << YAML::Value << c.clusters;
   e << YAML::EndMap;
   e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "video" << YAML::Value << s.output.video.string();

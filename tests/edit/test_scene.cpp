@@ -142,6 +142,19 @@ TEST(SceneErrors, NonPositiveValue) {
   EXPECT_NE(e.find("positive"), std::string::npos) << e;
 }
 
+TEST(Scene, ControlClusters) {
+  std::string text = kFull;
+  const std::string gradient = "  gradient: central";
+  text.replace(text.find(gradient), gradient.size(), gradient + "\n  clusters: 16");
+  EXPECT_EQ(parse_scene(text, "/scenes/s.yaml").control.clusters, 16);
+  EXPECT_EQ(parse_scene(kFull, "/scenes/s.yaml").control.clusters, 0);
+  text.replace(text.find("clusters: 16"), 12, "clusters: -2");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":23:"), std::string::npos) << e;
+  EXPECT_NE(e.find("control.clusters"), std::string::npos) << e;
+  EXPECT_NE(e.find("negative"), std::string::npos) << e;
+}
+
 TEST(SceneErrors, MissingRequiredKey) {
   const std::string e = error_of(
       "input: {video: a.mp4}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\nobject: {mesh: m.obj}\n"

@@ -82,6 +82,9 @@ struct SceneControl {
   /// Bound on each control force component, in multiples of its vertex's (or body's) weight
   /// m g; 0 = unbounded.
   double force_bound = 0.0;
+  /// Reduced control space: 0 = one force per active vertex; K > 0 = one acceleration per
+  /// spatial cluster of at most K clusters (ControlOptions::clusters).
+  int clusters = 0;
   /// Key -> line of every key given under `control:` (for messages about combinations).
   std::map<std::string, int> given;
 };

@@ -1,0 +1,121 @@
+// Control through a black-box engine: Bullet cloth at 37 x 28 = 1 036 nodes, the swung board of
+// the control tests (tests/control/cloth_scene.hpp) with pbve::bullet's cloth preset (3 substeps)
+// instead of mass_spring. Bullet has no derivatives, so every gradient is central differences,
+// in parallel over simulator clones.
+//
+// - BM_BulletFrames/mode:M/evaluations:E: ms per frame over frames 24..29 from the same state:
+//   M = 0 uncontrolled; 1 control over the default active set, one force per vertex;
+//   2 control over the same active set reduced to 16 clusters (48 variables,
+//   ControlOptions::clusters). L-BFGS with at most E objective evaluations per frame.
+//   Counters: ms_per_frame, violation_pct (mean), force_ratio (median control / physical),
+//   evals_per_frame, variables (per frame, mean).
+// - BM_BulletGradient: one central-difference gradient over all nodes (the paper's
+//   formulation), parallel; a frame costs about one such gradient per evaluation.
+
+#include <algorithm>
+#include <chrono>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+
+#include "control/cloth_scene.hpp"
+#include "pbve/bullet/bullet.hpp"
+
+namespace {
+
+using pbve::ControlFrameInput;
+using pbve::ControlOptimizer;
+using pbve::ControlOptions;
+using pbve::GradientMode;
+
+constexpr int kFirst = 24, kLast = 29;
+
+pbve::test::ClothScene make_scene() {
+  pbve::test::ClothScene scene(36, 27);
+  scene.amplitude_deg = 60.0;
+  scene.period_s = 0.7;
+  return scene;
+}
+
+std::unique_ptr<pbve::Simulator> start(const pbve::test::ClothScene& scene) {
+  auto p = pbve::bullet::Params::preset(pbve::bullet::Material::cloth);
+  p.substeps = 3;
+  auto sim = std::make_unique<pbve::bullet::BulletSimulator>(scene.sheet, scene.anchors, p);
+  for (int f = 1; f < kFirst; ++f) {
+    pbve::StepInput in;
+    in.dt = 1.0 / scene.fps;
+    in.anchor_targets = scene.anchor_targets(f);
+    sim->step(in);
+  }
+  return sim;
+}
+
+double ms_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void BM_BulletFrames(benchmark::State& state) {
+  const int mode = static_cast<int>(state.range(0));
+  const pbve::test::ClothScene scene = make_scene();
+  const auto sim0 = start(scene);
+  std::vector<ControlFrameInput> inputs;
+  for (int f = kFirst; f <= kLast; ++f) inputs.push_back(scene.control_input(f));
+  ControlOptions o;
+  o.solver = pbve::ControlSolver::lbfgs;
+  o.max_evaluations = std::max(1, static_cast<int>(state.range(1)));
+  o.gradient = GradientMode::central;
+  o.clusters = mode == 2 ? 16 : 0;
+  double violation = 0.0, ratio = 0.0, ms = 0.0, evaluations = 0.0, variables = 0.0;
+  for (auto _ : state) {
+    ms = violation = evaluations = variables = 0.0;
+    const auto t0 = std::chrono::steady_clock::now();
+    auto sim = sim0->clone();
+    ControlOptimizer opt(scene.two_sided, {}, o);
+    std::vector<double> ratios;
+    for (size_t k = 0; k < inputs.size(); ++k) {
+      const auto r = mode == 0 ? opt.step_uncontrolled(*sim, inputs[k])
+                               : opt.step(*sim, std::span(&inputs[k], 1));
+      ratios.push_back(r.physical_force > 0.0 ? r.control_force / r.physical_force : 0.0);
+      evaluations += r.evaluations;
+      variables += r.variables;
+      const auto t1 = std::chrono::steady_clock::now();
+      violation += scene.violation_pct(sim->positions(), kFirst + static_cast<int>(k));
+      ms -= ms_since(t1);
+    }
+    ms += ms_since(t0);
+    std::sort(ratios.begin(), ratios.end());
+    ratio = ratios[ratios.size() / 2];
+  }
+  const auto n = static_cast<double>(inputs.size());
+  state.counters["ms_per_frame"] = ms / n;
+  state.counters["violation_pct"] = violation / n;
+  state.counters["force_ratio"] = ratio;
+  state.counters["evals_per_frame"] = evaluations / n;
+  state.counters["variables"] = variables / n;
+  state.counters["vertices"] = scene.num_vertices();
+}
+
+void BM_BulletGradient(benchmark::State& state) {
+  const pbve::test::ClothScene scene = make_scene();
+  const auto sim = start(scene);
+  const std::vector<ControlFrameInput> window{scene.control_input(kFirst)};
+  ControlOptimizer opt(scene.two_sided);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(opt.evaluate(*sim, window, {}, GradientMode::central, {}));
+  state.counters["variables"] = 3.0 * scene.num_vertices();
+}
+
+}  // namespace
+
+BENCHMARK(BM_BulletFrames)
+    ->ArgNames({"mode", "evaluations"})
+    ->Args({0, 0})
+    ->Args({1, 4})
+    ->Args({2, 4})
+    ->Args({2, 20})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1);
+BENCHMARK(BM_BulletGradient)->Unit(benchmark::kMillisecond)->Iterations(1);
+BENCHMARK_MAIN();
