@@ -502,6 +502,12 @@ void ControlOptimizer::set_options(const ControlOptions& options) {
 
 std::vector<int> ControlOptimizer::active_blocks(Simulator& sim,
                                                  std::span<const ControlFrameInput> window) {
+  return select_blocks(sim, window, nullptr);
+}
+
+std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
+                                                 std::span<const ControlFrameInput> window,
+                                                 std::vector<Vertices>* predicted) {
   const int frames = window_frames(m_options, window);
   const ControlLayout layout = sim.control_layout();
   const std::vector<char> is_free = free_blocks(sim, layout);
@@ -525,7 +531,9 @@ std::vector<int> ControlOptimizer::active_blocks(Simulator& sim,
   const SimState s0 = problem.state0();
   for (int k = 0; k < frames; ++k) {
     sim.step(problem.input(k, Eigen::VectorXd()));
-    mark(k, sim.positions());
+    const Vertices x = sim.positions();
+    mark(k, x);
+    if (predicted) predicted->push_back(x);
   }
   sim.restore(s0);
   // k-ring growth.
@@ -691,7 +699,8 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   r.solver = m_options.solver;
   r.adjoint = adjoint && !hard;
 
-  const std::vector<int> active = active_blocks(sim, window);
+  std::vector<Vertices> predicted;  // uncontrolled window, when the active-set rule simulated it
+  const std::vector<int> active = select_blocks(sim, window, &predicted);
   WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
   const int size = problem.size();
   const int bs = problem.layout().block_size();
@@ -770,7 +779,18 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       sp.ub.setConstant(m_options.force_bound);
       z0 = z0.cwiseMax(sp.lb).cwiseMin(sp.ub);
     }
-    const auto initial = problem.evaluate(z0.data(), nullptr, adjoint, par);
+    // Energy at the initial guess; at zero control the active-set rule has just simulated
+    // that window (same state and inputs, so the same positions bit for bit).
+    WindowProblem::Eval initial;
+    if (u0.isZero(0.0) && static_cast<int>(predicted.size()) == frames) {
+      initial.energy =
+          problem.force_terms(problem.expand(z0.data()), nullptr, &initial.ef, &initial.et);
+      for (int k = 0; k < frames; ++k)
+        initial.ec += problem.visibility(k, predicted[static_cast<size_t>(k)], nullptr);
+      initial.energy += m_options.weights.visibility * initial.ec;
+    } else {
+      initial = problem.evaluate(z0.data(), nullptr, adjoint, par);
+    }
     r.initial_energy = initial.energy;
     if (!hard) {
       best = r.initial_energy;

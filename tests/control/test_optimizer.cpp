@@ -124,7 +124,10 @@ TEST_P(EverySolver, KeepsTheSheetTurnedAway) {
   o.solver = GetParam();
   o.max_evaluations = GetParam() == ControlSolver::cobyla ? 2000 : 200;
   ControlOptimizer opt(sheet_triangles(), {}, o);
+  const double e0 = opt.evaluate(sim, f, {}, GradientMode::automatic).energy;
   const ControlFrameResult r = opt.step(sim, f);
+  // The initial energy reuses the active-set rule's uncontrolled step: the same number.
+  EXPECT_EQ(r.initial_energy, e0);
   EXPECT_NE(r.status, ControlStatus::failed) << r.message;
   EXPECT_NE(r.status, ControlStatus::cancelled);
   EXPECT_GT(r.evaluations, 0);

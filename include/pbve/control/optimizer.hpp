@@ -268,6 +268,11 @@ class ControlOptimizer {
   ControlOptions m_options;
   Eigen::VectorXd m_previous;
   std::vector<std::vector<int>> m_adjacency;
+
+  // active_blocks(); when `predicted` is not null and the rule simulates the window without
+  // control (ActiveSet::at_risk), it receives the surface positions after each of its frames.
+  std::vector<int> select_blocks(Simulator& sim, std::span<const ControlFrameInput> window,
+                                 std::vector<Vertices>* predicted);
 };
 
 }  // namespace pbve
