@@ -68,7 +68,7 @@ void BM_Frames(benchmark::State& state) {
   for (int f = kFirst; f <= kLast; ++f) inputs.push_back(scene.control_input(f));
   ControlOptions o;
   o.solver = pbve::ControlSolver::lbfgs;
-  o.max_evaluations = static_cast<int>(state.range(1));
+  o.max_evaluations = std::max(1, static_cast<int>(state.range(1)));
   o.gradient = GradientMode::adjoint;
   double violation = 0.0, ratio = 0.0, ms = 0.0, evaluations = 0.0;
   for (auto _ : state) {
@@ -123,6 +123,8 @@ void frame_modes(benchmark::internal::Benchmark* b) {
   b->Args({uncontrolled, 0});
   b->Args({adjoint, 20});
   b->Args({adjoint, 4});
+  b->Args({adjoint, 3});
+  b->Args({adjoint, 2});
 }
 
 }  // namespace

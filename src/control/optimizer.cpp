@@ -255,6 +255,22 @@ class WindowProblem {
   struct Eval {
     double energy = 0.0, ec = 0.0, ef = 0.0, et = 0.0;
   };
+  // The simulator right after the first frame's step of an evaluation: committing that
+  // evaluation's controls is restoring it (the same state bit for bit as stepping again).
+  struct Snapshot {
+    SimState state;
+    Eigen::VectorXd physical;  // Simulator::physical_force_magnitudes() of that step
+    bool valid = false;
+  };
+  const Snapshot& last_snapshot() const { return m_snapshot; }
+  // The one-frame window already simulated at zero control from state0 (positions after the
+  // step and its snapshot): evaluate() at zero control uses it instead of stepping again, and
+  // the adjoint's step_vjp can reuse the simulator's record of that step.
+  void set_zero_step(Vertices positions, Snapshot first) {
+    m_zero_positions = std::move(positions);
+    m_zero_first = std::move(first);
+    m_has_zero_step = m_frames == 1 && m_zero_first.valid;
+  }
 
   // Energy at z; gradient dE/dz when grad is not null.
   Eval evaluate(const double* z, double* grad, bool adjoint, bool parallel) {
@@ -263,10 +279,24 @@ class WindowProblem {
     ev.energy = force_terms(u, nullptr, &ev.ef, &ev.et);
     std::vector<SimState> states;
     std::vector<Vertices> dx;
-    m_sim.restore(m_state0);
-    for (int k = 0; k < m_frames; ++k) {
+    const bool reuse_zero = m_has_zero_step && u[0].isZero(0.0);
+    if (reuse_zero) {
+      if (grad) states.push_back(m_state0);
+      Vertices g;
+      ev.ec = visibility(0, m_zero_positions, grad && adjoint ? &g : nullptr);
+      if (grad && adjoint) dx.push_back(std::move(g));
+      m_snapshot = m_zero_first;
+    } else {
+      m_sim.restore(m_state0);
+    }
+    for (int k = reuse_zero ? m_frames : 0; k < m_frames; ++k) {
       if (grad) states.push_back(m_sim.save());
       m_sim.step(input(k, u[static_cast<size_t>(k)]));
+      if (k == 0) {
+        m_snapshot.state = m_sim.save();
+        m_snapshot.physical = m_sim.physical_force_magnitudes();
+        m_snapshot.valid = true;
+      }
       Vertices g;
       ev.ec += visibility(k, m_sim.positions(), grad && adjoint ? &g : nullptr);
       if (grad && adjoint) dx.push_back(std::move(g));
@@ -381,7 +411,11 @@ class WindowProblem {
   SimState m_state0;
   std::vector<int> m_active;
   std::vector<std::vector<Entry>> m_columns;  // per variable of a frame
-  int m_nv = 0;                               // variables per frame
+  Snapshot m_snapshot;                        // of the latest evaluate()
+  Vertices m_zero_positions;                  // see set_zero_step()
+  Snapshot m_zero_first;
+  bool m_has_zero_step = false;
+  int m_nv = 0;  // variables per frame
   std::vector<std::pair<int, int>> m_constraints;
   double m_gradient_ms = 0.0;
   int m_gradients = 0;
@@ -502,12 +536,13 @@ void ControlOptimizer::set_options(const ControlOptions& options) {
 
 std::vector<int> ControlOptimizer::active_blocks(Simulator& sim,
                                                  std::span<const ControlFrameInput> window) {
-  return select_blocks(sim, window, nullptr);
+  return select_blocks(sim, window, nullptr, nullptr, nullptr);
 }
 
 std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
                                                  std::span<const ControlFrameInput> window,
-                                                 std::vector<Vertices>* predicted) {
+                                                 std::vector<Vertices>* predicted, SimState* first,
+                                                 Eigen::VectorXd* first_physical) {
   const int frames = window_frames(m_options, window);
   const ControlLayout layout = sim.control_layout();
   const std::vector<char> is_free = free_blocks(sim, layout);
@@ -530,10 +565,13 @@ std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
   // Predicted uncontrolled steps of the window.
   const SimState s0 = problem.state0();
   for (int k = 0; k < frames; ++k) {
-    sim.step(problem.input(k, Eigen::VectorXd()));
+    // An explicit zero control: the same input as an evaluation at zero control.
+    sim.step(problem.input(k, Eigen::VectorXd::Zero(problem.size())));
     const Vertices x = sim.positions();
     mark(k, x);
     if (predicted) predicted->push_back(x);
+    if (k == 0 && first) *first = sim.save();
+    if (k == 0 && first_physical) *first_physical = sim.physical_force_magnitudes();
   }
   sim.restore(s0);
   // k-ring growth.
@@ -700,7 +738,10 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   r.adjoint = adjoint && !hard;
 
   std::vector<Vertices> predicted;  // uncontrolled window, when the active-set rule simulated it
-  const std::vector<int> active = select_blocks(sim, window, &predicted);
+  WindowProblem::Snapshot predicted_first;
+  const std::vector<int> active =
+      select_blocks(sim, window, &predicted, &predicted_first.state, &predicted_first.physical);
+  predicted_first.valid = static_cast<int>(predicted.size()) == frames;
   WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
   const int size = problem.size();
   const int bs = problem.layout().block_size();
@@ -712,6 +753,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   } else {
     problem.set_active(active);
   }
+  if (predicted_first.valid) problem.set_zero_step(predicted.front(), predicted_first);
   r.active_blocks = static_cast<int>(active.size());
   const int n = problem.num_variables();
   r.variables = n;
@@ -723,6 +765,8 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   Eigen::VectorXd z0 = problem.to_z(u0);
 
   Eigen::VectorXd z_best = z0;
+  // The simulator after the first frame's step with z_best, when an evaluation made it.
+  WindowProblem::Snapshot best_snapshot;
   if (n > 0) {
     if (hard) {
       // At-risk must-stay-hidden triangles of the predicted uncontrolled window.
@@ -764,6 +808,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       if (!hard && e < best) {
         best = e;
         z_best = Eigen::Map<const Eigen::VectorXd>(z, n);
+        best_snapshot = problem.last_snapshot();
       }
       if (callbacks.progress) callbacks.progress({evaluations, e, best});
       return e;
@@ -782,14 +827,16 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
     // Energy at the initial guess; at zero control the active-set rule has just simulated
     // that window (same state and inputs, so the same positions bit for bit).
     WindowProblem::Eval initial;
-    if (u0.isZero(0.0) && static_cast<int>(predicted.size()) == frames) {
+    if (u0.isZero(0.0) && predicted_first.valid) {
       initial.energy =
           problem.force_terms(problem.expand(z0.data()), nullptr, &initial.ef, &initial.et);
       for (int k = 0; k < frames; ++k)
         initial.ec += problem.visibility(k, predicted[static_cast<size_t>(k)], nullptr);
       initial.energy += m_options.weights.visibility * initial.ec;
+      best_snapshot = predicted_first;
     } else {
       initial = problem.evaluate(z0.data(), nullptr, adjoint, par);
+      best_snapshot = problem.last_snapshot();
     }
     r.initial_energy = initial.energy;
     if (!hard) {
@@ -819,7 +866,10 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       r.evaluations = evaluations;
       r.gradient_evaluations = problem.gradients();
       r.gradient_ms = problem.gradient_ms();
-      if (hard && out.z.size() == n) z_best = out.z;
+      if (hard && out.z.size() == n) {
+        z_best = out.z;
+        best_snapshot.valid = false;  // the solver's point, not necessarily an evaluated one
+      }
       // With one frame the committed step below gives the window energy at the solution.
       if (frames > 1)
         r.final_energy = problem.evaluate(z_best.data(), nullptr, adjoint, par).energy;
@@ -827,12 +877,20 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   } else {
     r.message = "no control block at risk";
     r.initial_energy = r.final_energy = problem.evaluate(z0.data(), nullptr, adjoint, false).energy;
+    best_snapshot = problem.last_snapshot();
   }
 
-  // Commit the first frame and step.
+  // Commit the first frame: restore the state its evaluation reached, or step.
   const std::vector<Eigen::VectorXd> u = problem.expand(z_best.data());
-  sim.restore(problem.state0());
-  sim.step(problem.input(0, u[0]));
+  Eigen::VectorXd physical;
+  if (best_snapshot.valid) {
+    sim.restore(best_snapshot.state);
+    physical = std::move(best_snapshot.physical);
+  } else {
+    sim.restore(problem.state0());
+    sim.step(problem.input(0, u[0]));
+    physical = sim.physical_force_magnitudes();
+  }
   r.control = u[0];
   r.visibility_energy = problem.visibility(0, sim.positions(), nullptr);
   std::vector<Eigen::VectorXd> first{u[0]};
@@ -842,7 +900,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
              m_options.weights.temporal * r.temporal_energy;
   if (frames == 1 && n > 0) r.final_energy = r.energy;
   r.control_force = control_force_sum(r.control, bs);
-  r.physical_force = free_force_sum(sim, sim.physical_force_magnitudes());
+  r.physical_force = free_force_sum(sim, physical);
   m_previous = r.control;
   r.total_ms = ms_since(t_start);
   return r;

@@ -238,6 +238,11 @@ class ControlOptimizer {
   /// options().window are used, fewer at the end of a sequence) starting from `sim`'s current
   /// state, commits the first frame's forces and steps `sim` once with them. Throws
   /// std::invalid_argument for an empty window or wrong sizes.
+  ///
+  /// The committed step is not simulated again: `sim` is restored to the state saved right
+  /// after that step in the evaluation that found the forces (bit-identical to stepping, by
+  /// the save/restore contract). So afterwards sim.physical_forces() may describe another
+  /// step of the search; the result's `physical_force` is the committed step's.
   ControlFrameResult step(Simulator& sim, std::span<const ControlFrameInput> window,
                           const ControlCallbacks& callbacks = {});
 
@@ -270,9 +275,11 @@ class ControlOptimizer {
   std::vector<std::vector<int>> m_adjacency;
 
   // active_blocks(); when `predicted` is not null and the rule simulates the window without
-  // control (ActiveSet::at_risk), it receives the surface positions after each of its frames.
+  // control (ActiveSet::at_risk), it receives the surface positions after each of its frames,
+  // and `first` / `first_physical` the state and physical force magnitudes after the first.
   std::vector<int> select_blocks(Simulator& sim, std::span<const ControlFrameInput> window,
-                                 std::vector<Vertices>* predicted);
+                                 std::vector<Vertices>* predicted, SimState* first,
+                                 Eigen::VectorXd* first_physical);
 };
 
 }  // namespace pbve
