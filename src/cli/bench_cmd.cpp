@@ -82,6 +82,14 @@ std::string host_name() {
   return buf;
 }
 
+/// The 1-minute load average (other work on the machine skews the timings), or -1.
+double load_average() {
+  std::ifstream f("/proc/loadavg");
+  double v = -1.0;
+  f >> v;
+  return f ? v : -1.0;
+}
+
 std::string utc_now() {
   const std::time_t t = std::time(nullptr);
   std::tm tm{};
@@ -197,6 +205,7 @@ int run_bench(const std::vector<std::string>& argv) {
   } cleanup{work, keep};
 
   if (!quiet) std::fprintf(stderr, "making example 1's clip (%d frames, %s)\n", end, size.c_str());
+  const double load_before = load_average();
   const SynthOutput clip = synthesize(so, work);
   const Scene base = load_scene(clip.scene);
   const Mesh mesh = load_mesh(clip.mesh);
@@ -279,6 +288,7 @@ int run_bench(const std::vector<std::string>& argv) {
               {"date_utc", utc_now()},
               {"host", host_name()},
               {"hardware_threads", std::thread::hardware_concurrency()},
+              {"load_average_1min", {{"start", load_before}, {"end", load_average()}}},
               {"size", {so.width, so.height}},
               {"command", "pbve bench " +
                               [&] {
