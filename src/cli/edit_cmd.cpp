@@ -20,6 +20,7 @@ std::atomic<bool> g_interrupted{false};
 
 extern "C" void on_sigint(int) {
   g_interrupted.store(true);
+  std::signal(SIGINT, SIG_DFL);  // a second Ctrl-C stops at once
 }
 
 void parse_frames(const std::string& spec, EditOptions& o) {
@@ -78,7 +79,9 @@ int run_edit(const std::vector<std::string>& argv) {
         "  --quiet            no progress output\n"
         "\n"
         "exit status: 0 when the video and the report were written, 1 on error, 2 on bad usage,\n"
-        "130 when interrupted (the partial results are still written).");
+        "130 when interrupted (the partial results are still written). A frame whose simulation\n"
+        "diverges is recomputed with 2x then 4x the substeps; if it still diverges the run stops\n"
+        "with status 1, keeping the frames edited so far (report marked incomplete).");
     return 0;
   }
   EditOptions o;
@@ -116,6 +119,12 @@ int run_edit(const std::vector<std::string>& argv) {
       s.frames, s.violation_pct_mean, s.violation_pct_max, s.control_to_physical_force_median,
       s.ms_per_frame_mean);
   for (const auto& w : r.report.warnings) std::printf("warning: %s\n", w.c_str());
+  if (r.status == EditStatus::diverged) {
+    std::fflush(stdout);
+    std::fprintf(stderr, "pbve edit: error: %s (the video and the report hold frames %d to %d)\n",
+                 r.report.stopped_reason.c_str(), o.first_frame, r.report.stopped_at - 1);
+    return 1;
+  }
   if (!r.complete) {
     std::printf("stopped early: %s\n", r.report.stopped_reason.c_str());
     return 130;

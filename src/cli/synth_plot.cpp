@@ -1,5 +1,6 @@
 // pbve synth and pbve plot.
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 
@@ -55,7 +56,15 @@ int run_synth(const std::vector<std::string>& argv) {
   o.shape = args.value("--shape", {}, o.shape);
   o.motion = args.value("--motion", {}, o.motion);
   o.frames = parse_int(args.value("--frames", {}, "90"), "--frames");
-  o.fps = std::stod(args.value("--fps", {}, "30"));
+  const std::string fps = args.value("--fps", {}, "30");
+  try {
+    size_t n = 0;
+    o.fps = std::stod(fps, &n);
+    if (n != fps.size() || !(o.fps > 0.0) || !std::isfinite(o.fps))
+      throw std::invalid_argument(fps);
+  } catch (const std::exception&) {
+    throw UsageError("--fps expects a positive number, got '" + fps + "'");
+  }
   o.supersample = parse_int(args.value("--supersample", {}, "3"), "--supersample");
   const std::string size = args.value("--size", {}, "640x480");
   const auto x = size.find('x');

@@ -124,11 +124,13 @@ MeshReport validate_mesh(const Mesh& mesh, const std::filesystem::path& source) 
   // Edge use counts by sorting all edge keys.
   std::vector<std::uint64_t> keys;
   keys.reserve(nfs * 3);
-  for (int f = 0; f < nf; ++f)
-    for (int k = 0; k < 3; ++k) {
-      const int a = mesh.triangles(f, k), b = mesh.triangles(f, (k + 1) % 3);
-      if (a != b) keys.push_back(edge_key(a, b));
-    }
+  for (int f = 0; f < nf; ++f) {
+    const int a = mesh.triangles(f, 0), b = mesh.triangles(f, 1), c = mesh.triangles(f, 2);
+    if (a == b || b == c || a == c) continue;  // counted as degenerate, has no proper edges
+    keys.push_back(edge_key(a, b));
+    keys.push_back(edge_key(b, c));
+    keys.push_back(edge_key(c, a));
+  }
   std::sort(keys.begin(), keys.end());
   std::vector<std::uint64_t> non_manifold;
   for (std::size_t i = 0; i < keys.size();) {

@@ -1,11 +1,15 @@
 #include "pbve/edit/editor.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <map>
 #include <optional>
 #include <sstream>
+
+#include <fcntl.h>
+#include <unistd.h>
 
 #include <opencv2/imgcodecs.hpp>
 
@@ -41,19 +45,65 @@ bool same_file(const fs::path& a, const fs::path& b) {
   return fs::weakly_canonical(a, ec) == fs::weakly_canonical(b, ec);
 }
 
-void check_output_path(const fs::path& out, const Scene& scene, const char* key) {
+/// An error about the scene key `key` (dotted name), at its line in the scene file.
+InputError scene_error(const Scene& s, const std::string& key, const std::string& message) {
+  return InputError(message, s.file, s.line_of(key), "key '" + key + "'");
+}
+
+/// Checks that an input file given by scene key `key` exists and can be read.
+void check_input_file(const Scene& s, const fs::path& path, const std::string& key,
+                      const std::string& what) {
+  if (path.empty()) return;
+  std::error_code ec;
+  const fs::file_status st = fs::status(path, ec);
+  if (!fs::exists(st)) throw scene_error(s, key, what + " not found: " + path.string());
+  if (fs::is_directory(st))
+    throw scene_error(s, key, what + " is a folder, not a file: " + path.string());
+  if (::access(path.c_str(), R_OK) != 0)
+    throw scene_error(s, key, what + " is not readable: " + path.string());
+}
+
+/// Checks that `out` (given by key `key` or the command line) is not an input and that its
+/// folder exists and accepts new files (probed by creating the temporary name).
+void check_output_path(const fs::path& out, const Scene& scene, const std::string& key,
+                       bool from_scene) {
+  auto fail = [&](const std::string& message) {
+    if (from_scene) throw scene_error(scene, key, message);
+    throw InputError(message, out);
+  };
   const std::vector<fs::path> inputs = {scene.file,         scene.input.video,
                                         scene.input.image,  scene.object.mesh,
                                         scene.object.poses, scene.background.plate};
   for (const fs::path& in : inputs)
-    if (same_file(out, in))
-      throw InputError("the output would overwrite the input file " + in.string(), scene.file, 0,
-                       std::string("key '") + key + "'");
+    if (same_file(out, in)) fail("the output would overwrite the input file " + in.string());
   const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
   std::error_code ec;
-  if (!fs::is_directory(dir, ec))
-    throw InputError("the output folder " + dir.string() + " does not exist", scene.file, 0,
-                     std::string("key '") + key + "'");
+  if (!fs::is_directory(dir, ec)) fail("the output folder " + dir.string() + " does not exist");
+  if (fs::is_directory(out, ec)) fail("the output " + out.string() + " is a folder");
+  const fs::path probe = partial_path(out);
+  const bool existed = fs::exists(probe, ec);
+  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0)
+    fail("cannot create files in the output folder " + dir.string() + ": " +
+         std::generic_category().message(errno));
+  ::close(fd);
+  if (!existed) fs::remove(probe, ec);
+}
+
+/// Adds the scene file's line to an engine's error about a scene key or material parameter.
+[[noreturn]] void rethrow_engine_error(const InputError& e, const Scene& scene) {
+  if (e.file() != scene.file || e.line() > 0) throw e;
+  std::string message = e.message();
+  const std::string prefix = scene.simulation.engine + ": ";
+  while (message.rfind(prefix + prefix, 0) == 0) message.erase(0, prefix.size());
+  std::string key;
+  if (e.key().rfind("key '", 0) == 0 && e.key().size() > 6)
+    key = e.key().substr(5, e.key().size() - 6);
+  for (const auto& [name, value_line] : scene.simulation.parameters)
+    if (key.empty() && message.find("parameter " + name + " ") != std::string::npos)
+      key = "simulation." + name;
+  if (key.empty()) throw InputError(message, scene.file, 0, e.key());
+  throw scene_error(scene, key, message);
 }
 
 Footage open_footage(const Scene& s) {
@@ -87,9 +137,10 @@ std::vector<int> select_anchors(const Scene& s, const Mesh& mesh, int original_v
   std::vector<int> ids;
   for (int v : s.object.anchors.vertices) {
     if (v >= original_vertices)
-      throw InputError("anchor vertex " + std::to_string(v) + " is out of range (the mesh has " +
-                           std::to_string(original_vertices) + " vertices)",
-                       s.file, 0, "key 'object.anchors.vertices'");
+      throw scene_error(s, "object.anchors.vertices",
+                        "anchor vertex " + std::to_string(v) + " is out of range (the mesh has " +
+                            std::to_string(original_vertices) + " vertices, 0 to " +
+                            std::to_string(original_vertices - 1) + ")");
     ids.push_back(v);
   }
   if (s.object.anchors.box_min) {
@@ -104,7 +155,9 @@ std::vector<int> select_anchors(const Scene& s, const Mesh& mesh, int original_v
       }
     }
     if (selected == 0)
-      warnings.push_back("object.anchors.box selects no vertex: the object is not held there");
+      warnings.push_back(
+          format_location(s.file, s.line_of("object.anchors.box"), "key 'object.anchors.box'") +
+          "selects no vertex of the mesh: the object is not held there");
   }
   std::sort(ids.begin(), ids.end());
   ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
@@ -112,6 +165,62 @@ std::vector<int> select_anchors(const Scene& s, const Mesh& mesh, int original_v
     warnings.push_back(
         "no anchor vertices: the object moves freely and does not follow the footage");
   return ids;
+}
+
+/// Factors of the scene's substeps a diverging frame is retried with, in order.
+constexpr std::array<int, 2> kRetryFactors = {2, 4};
+
+/// Detects a diverged simulation: non-finite positions or velocities, or a vertex that flew
+/// away (farther from the rest shape's centre than 1000 times its size plus 1000 m).
+class DivergenceCheck {
+ public:
+  explicit DivergenceCheck(const Vertices& rest)
+      : m_centre(rest.colwise().mean()),
+        m_limit(1000.0 * ((rest.colwise().maxCoeff() - rest.colwise().minCoeff()).norm() + 1.0)) {}
+  /// Empty when the state is sound, else what is wrong.
+  std::string operator()(const Simulator& sim) const {
+    const Vertices x = sim.positions();
+    if (!x.allFinite()) return "non-finite positions";
+    if (!sim.velocities().allFinite()) return "non-finite velocities";
+    if (x.rows() > 0 && ((x.rowwise() - m_centre).rowwise().norm().maxCoeff() > m_limit))
+      return "a vertex flew away";
+    return {};
+  }
+
+ private:
+  Eigen::RowVector3d m_centre;
+  double m_limit;
+};
+
+/// Steps `sim` over one frame in `factor` equal steps with `control` held constant and the
+/// anchors interpolated linearly to the frame's targets (the equivalent of `factor` times the
+/// substeps). Returns the physical force of the frame (mean over the steps of the sum over
+/// free vertices), as the report counts it.
+double step_subdivided(Simulator& sim, const Eigen::VectorXd& control,
+                       const ControlFrameInput& frame, int factor) {
+  const std::vector<int> anchors = sim.anchors();
+  const Vertices x0 = sim.positions();
+  Vertices a0(static_cast<Eigen::Index>(anchors.size()), 3);
+  for (size_t i = 0; i < anchors.size(); ++i)
+    a0.row(static_cast<Eigen::Index>(i)) = x0.row(anchors[i]);
+  const bool move_anchors = frame.anchor_targets.rows() == a0.rows() && a0.rows() > 0;
+  std::vector<char> anchored(static_cast<size_t>(sim.num_vertices()), 0);
+  for (int a : anchors) anchored[static_cast<size_t>(a)] = 1;
+  double physical = 0.0;
+  for (int k = 1; k <= factor; ++k) {
+    StepInput in;
+    in.dt = frame.dt / factor;
+    in.control = control;
+    if (move_anchors) {
+      const double s = static_cast<double>(k) / factor;
+      in.anchor_targets = (1.0 - s) * a0 + s * frame.anchor_targets;
+    }
+    sim.step(in);
+    const Eigen::VectorXd f = sim.physical_force_magnitudes();
+    for (Eigen::Index v = 0; v < f.size(); ++v)
+      if (!anchored[static_cast<size_t>(v)]) physical += f[v];
+  }
+  return physical / factor;
 }
 
 }  // namespace
@@ -123,11 +232,16 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   Report& report = result.report;
   result.video = options.video.empty() ? scene.output.video : options.video;
   result.report_path = options.report.empty() ? scene.output.report : options.report;
-  check_output_path(result.video, scene, "output.video");
-  check_output_path(result.report_path, scene, "output.report");
+  // ---- checks before any work: inputs readable, outputs writable and not inputs ----------
+  check_input_file(scene, scene.input.video, "input.video", "video file");
+  check_input_file(scene, scene.input.image, "input.image", "image file");
+  check_input_file(scene, scene.object.mesh, "object.mesh", "mesh file");
+  check_input_file(scene, scene.object.poses, "object.poses", "pose file");
+  check_input_file(scene, scene.background.plate, "background.plate", "background plate");
+  check_output_path(result.video, scene, "output.video", options.video.empty());
+  check_output_path(result.report_path, scene, "output.report", options.report.empty());
   if (same_file(result.video, result.report_path))
-    throw InputError("the video and the report would be the same file", scene.file, 0,
-                     "key 'output.report'");
+    throw scene_error(scene, "output.report", "the video and the report would be the same file");
 
   // ---- inputs -----------------------------------------------------------------------------
   Footage footage = open_footage(scene);
@@ -141,13 +255,17 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   try {
     camera.validate();
   } catch (const InputError& e) {
-    throw InputError(e.message(), scene.file, 0, e.key());
+    throw scene_error(scene, e.key(), e.message());
   }
 
   Mesh mesh = load_mesh(scene.object.mesh);
   const MeshReport findings = validate_mesh(mesh, scene.object.mesh);
+  if (findings.degenerate_count == mesh.num_triangles())
+    throw InputError("every triangle of the mesh is degenerate (zero area): nothing to simulate",
+                     scene.object.mesh);
   if (!findings.ok())
-    report.warnings.push_back(scene.object.mesh.string() + ": " + findings.summary());
+    report.warnings.push_back(scene.object.mesh.string() + ": " + findings.summary() +
+                              " They are simulated as given: check the edited video there.");
   const int original_vertices = mesh.num_vertices();
   if (scene.object.refine > 0) mesh = refine_mesh(mesh, scene.object.refine);
 
@@ -166,8 +284,12 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   const int first = options.first_frame;
   const int end = options.end_frame < 0 ? frames : std::min(options.end_frame, frames);
   if (first < 0 || first >= end)
-    throw InputError("frame range " + std::to_string(first) + ":" + std::to_string(end) +
-                     " is empty or outside the footage's " + std::to_string(frames) + " frames");
+    throw InputError(
+        "frames " + std::to_string(first) + ":" +
+            (options.end_frame < 0 ? std::string() : std::to_string(options.end_frame)) +
+            " requested, but the footage has " + std::to_string(frames) +
+            " frames (0:" + std::to_string(frames) + ")",
+        footage.source());
 
   // Poses of the edited range; `lost` frames hold the last known pose (and its frame's texture).
   std::vector<Pose> pose(static_cast<size_t>(end));
@@ -208,7 +330,12 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   recipe.rest_positions = pose[static_cast<size_t>(first)].apply(mesh.vertices);
   recipe.anchors = anchors;
   recipe.scene_file = scene.file;
-  std::unique_ptr<Simulator> sim = cb.make_simulator(recipe);
+  std::unique_ptr<Simulator> sim;
+  try {
+    sim = cb.make_simulator(recipe);
+  } catch (const InputError& e) {
+    rethrow_engine_error(e, scene);
+  }
   report.engine = sim->name();
   if (sim->num_vertices() != mesh.num_vertices())
     throw std::logic_error("the simulator has " + std::to_string(sim->num_vertices()) +
@@ -283,6 +410,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   RayScene sim_scene(sim->positions(), mesh.triangles);
   MetricOptions metric_options;
   cv::Mat output;
+  const DivergenceCheck diverged(recipe.rest_positions);
 
   const int total = end - first;
   for (int t = first; t < end; ++t) {
@@ -301,10 +429,70 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
         window[k].anchor_targets = pose[static_cast<size_t>(tk)].apply(anchor_rest);
         window[k].unobserved = input_visibility(tk).keep_hidden;
       }
-      ControlCallbacks ccb;
-      ccb.cancel = cb.cancel;
-      const ControlFrameResult r = control ? optimizer.step(*sim, window, ccb)
-                                           : optimizer.step_uncontrolled(*sim, window[0]);
+      const SimState before = sim->save();
+      ControlFrameResult r;
+      std::string failure;  // why the simulation of this frame failed, empty if it did not
+      if (control) {
+        ControlCallbacks ccb;
+        ccb.cancel = cb.cancel;
+        std::string fallback;
+        try {
+          r = optimizer.step(*sim, window, ccb);
+          if (!r.control.allFinite() || !std::isfinite(r.energy))
+            fallback = "non-finite energy or forces";
+        } catch (const std::exception& e) {
+          fallback = e.what();
+        }
+        if (!fallback.empty()) {
+          report.warnings.push_back("frame " + std::to_string(t) +
+                                    ": the control optimizer failed (" + fallback +
+                                    "); the frame was simulated without control forces");
+          sim->restore(before);
+          try {
+            r = optimizer.step_uncontrolled(*sim, window[0]);
+          } catch (const std::exception& e) {
+            failure = e.what();
+          }
+          r.status = ControlStatus::failed;
+        }
+      } else {
+        try {
+          r = optimizer.step_uncontrolled(*sim, window[0]);
+        } catch (const std::exception& e) {
+          failure = e.what();
+        }
+      }
+      if (failure.empty()) failure = diverged(*sim);
+      if (!failure.empty()) {
+        // Retry the frame with 2x, then 4x the substeps (the frame interval split into equal
+        // steps, anchors interpolated), keeping the committed control forces.
+        const std::string first_failure = failure;
+        for (const int factor : kRetryFactors) {
+          sim->restore(before);
+          try {
+            r.physical_force = step_subdivided(*sim, r.control, window[0], factor);
+            failure = diverged(*sim);
+          } catch (const std::exception& e) {
+            failure = e.what();
+          }
+          if (failure.empty()) {
+            rec.substep_factor = factor;
+            report.warnings.push_back("the simulation diverged in frame " + std::to_string(t) +
+                                      " (" + first_failure + "); the frame was recomputed with " +
+                                      std::to_string(factor) + "x the substeps");
+            break;
+          }
+        }
+      }
+      if (!failure.empty()) {
+        report.complete = false;
+        report.stopped_at = t;
+        report.stopped_reason = "the simulation diverged in frame " + std::to_string(t) + " (" +
+                                failure + ") even with " + std::to_string(kRetryFactors.back()) +
+                                "x the substeps; try more simulation.substeps or a softer material";
+        result.status = EditStatus::diverged;
+        break;
+      }
       rec.control_force = r.control_force;
       rec.physical_force = r.physical_force;
       rec.solve_ms = r.solve_ms;
@@ -312,9 +500,6 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
       rec.status = control ? to_string(r.status) : "off";
     }
     const Vertices simulated = sim->positions();
-    if (!simulated.allFinite())
-      throw std::runtime_error("the simulation diverged (non-finite positions) in frame " +
-                               std::to_string(t));
     sim_scene.update(simulated);
     const auto& obs = observed(t);
     const ViolationMetric m =
@@ -332,13 +517,25 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     if (cb.progress) cb.progress({t - first + 1, total, rec});
     if (cb.cancel && cb.cancel() && t + 1 < end) {
       report.complete = false;
+      report.stopped_at = t + 1;
       report.stopped_reason = "cancelled after frame " + std::to_string(t);
+      result.status = EditStatus::cancelled;
       break;
     }
   }
-  writer.close();
   for (auto& w : faithfulness_warnings(report.frames)) report.warnings.push_back(std::move(w));
-  write_report(report, result.report_path);
+  // The report is written under its temporary name first, so that a failure leaves neither
+  // output under its final name; then both are moved into place.
+  const fs::path staged_report = partial_path(result.report_path);
+  try {
+    write_report(report, staged_report);
+    writer.close();
+    fs::rename(staged_report, result.report_path);
+  } catch (...) {
+    std::error_code ec;
+    fs::remove(staged_report, ec);
+    throw;
+  }
   result.complete = report.complete;
   return result;
 }

@@ -103,7 +103,10 @@ std::vector<std::string> faithfulness_warnings(const std::vector<FrameRecord>& f
 void write_report(const Report& report, const std::filesystem::path& path) {
   json j;
   j["complete"] = report.complete;
-  if (!report.complete) j["stopped_reason"] = report.stopped_reason;
+  if (!report.complete) {
+    j["stopped_at"] = report.stopped_at;
+    j["stopped_reason"] = report.stopped_reason;
+  }
   j["engine"] = report.engine;
   json frames = json::array();
   for (const FrameRecord& f : report.frames) {
@@ -116,7 +119,8 @@ void write_report(const Report& report, const std::filesystem::path& path) {
                       {"frame_ms", f.frame_ms},
                       {"iterations", f.iterations},
                       {"status", f.status},
-                      {"pose_lost", f.pose_lost}});
+                      {"pose_lost", f.pose_lost},
+                      {"substep_factor", f.substep_factor}});
   }
   j["frames"] = std::move(frames);
   const ReportSummary s = report.summary();
@@ -149,6 +153,7 @@ Report read_report(const std::filesystem::path& path) {
   Report r;
   try {
     r.complete = j.value("complete", true);
+    r.stopped_at = j.value("stopped_at", -1);
     r.stopped_reason = j.value("stopped_reason", "");
     r.engine = j.value("engine", "");
     for (const json& f : j.at("frames")) {
@@ -163,6 +168,7 @@ Report read_report(const std::filesystem::path& path) {
       x.iterations = f.value("iterations", 0);
       x.status = f.value("status", "");
       x.pose_lost = f.value("pose_lost", false);
+      x.substep_factor = f.value("substep_factor", 1);
       r.frames.push_back(x);
     }
     if (j.contains("summary") && j["summary"].contains("warnings"))

@@ -44,7 +44,13 @@ namespace {
 /// Reads typed values from YAML nodes, throwing InputError with file, line and key.
 class Reader {
  public:
-  explicit Reader(fs::path file) : m_file(std::move(file)) {}
+  Reader(fs::path file, std::map<std::string, int>& lines)
+      : m_file(std::move(file)), m_lines(&lines) {}
+
+  /// Records the line of `key` (dotted name) for later messages.
+  void note(const std::string& key, const YAML::Node& key_node) const {
+    (*m_lines)[key] = key_node.Mark().line + 1;
+  }
 
   [[noreturn]] void fail(const YAML::Node& node, const std::string& key,
                          const std::string& message) const {
@@ -58,7 +64,10 @@ class Reader {
     if (!node.IsMap()) fail(node, section, "expected a mapping of keys");
     for (const auto& kv : node) {
       const std::string k = kv.first.as<std::string>();
-      if (std::find(allowed.begin(), allowed.end(), k) != allowed.end()) continue;
+      if (std::find(allowed.begin(), allowed.end(), k) != allowed.end()) {
+        note(join(section, k), kv.first);
+        continue;
+      }
       std::string msg = "unknown key";
       const std::string near = nearest_key(k, allowed);
       if (!near.empty()) msg += " (did you mean '" + near + "'?)";
@@ -149,6 +158,7 @@ class Reader {
 
  private:
   fs::path m_file;
+  std::map<std::string, int>* m_lines;
 };
 
 void require(const Reader& r, const YAML::Node& parent, const char* name,
@@ -160,8 +170,16 @@ void require(const Reader& r, const YAML::Node& parent, const char* name,
 
 }  // namespace
 
-Scene parse_scene(const std::string& text, const fs::path& path) {
-  Reader r(path);
+int Scene::line_of(const std::string& key) const {
+  const auto it = lines.find(key);
+  return it == lines.end() ? 0 : it->second;
+}
+
+namespace {
+
+Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
+  Scene s;
+  Reader r(path, s.lines);
   YAML::Node root;
   try {
     root = YAML::Load(text);
@@ -171,7 +189,6 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
   if (!root.IsDefined() || root.IsNull()) throw InputError("the scene file is empty", path);
   r.check_map(root, "",
               {"input", "camera", "object", "background", "simulation", "control", "output"});
-  Scene s;
   s.file = path;
 
   require(r, root, "input", "");
@@ -262,6 +279,7 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
       const std::string k = kv.first.as<std::string>();
       const std::string key = "simulation." + k;
       const YAML::Node& v = kv.second;
+      r.note(key, kv.first);
       if (k == "engine") {
         s.simulation.engine = r.choice(v, key, {"mass_spring", "bullet"});
       } else if (k == "material") {
@@ -351,7 +369,22 @@ Scene parse_scene(const std::string& text, const fs::path& path) {
   return s;
 }
 
+}  // namespace
+
+Scene parse_scene(const std::string& text, const fs::path& path) {
+  try {
+    return parse_scene_nodes(text, path);
+  } catch (const YAML::Exception& e) {
+    // E.g. a key that is itself a list or mapping: yaml-cpp cannot convert it to a string.
+    throw InputError("unexpected YAML structure: " + e.msg, path,
+                     e.mark.is_null() ? 0 : e.mark.line + 1);
+  }
+}
+
 Scene load_scene(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError("scene file not found", path);
+  if (fs::is_directory(path, ec)) throw InputError("the scene file is a folder", path);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError("cannot open the scene file", path);
   std::stringstream ss;

@@ -1,8 +1,6 @@
 // End-to-end: `pbve synth` then `pbve edit` on small scenes (few frames, low resolution),
 // checking the video, the report, and bad input through the command.
 
-#include <sys/wait.h>
-
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -13,34 +11,18 @@
 
 #include "pbve/core/footage.hpp"
 #include "pbve/edit/report.hpp"
+#include "support/cli.hpp"
 #include "support/test_util.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
 
-struct CmdResult {
-  int status = -1;
-  std::string output;
-};
-
-CmdResult pbve_cmd(const std::string& args) {
-  const std::string cmd = std::string(PBVE_BINARY_DIR) + "/bin/pbve " + args + " 2>&1";
-  CmdResult r;
-  FILE* p = ::popen(cmd.c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  while (size_t n = std::fread(buf, 1, sizeof buf, p)) r.output.append(buf, n);
-  const int st = ::pclose(p);
-  r.status = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-  return r;
-}
+using pbve::test::CmdResult;
+using pbve::test::pbve_cmd;
 
 std::string read(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+  return pbve::test::read_text(p);
 }
 
 void write(const fs::path& p, const std::string& text) {

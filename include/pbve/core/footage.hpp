@@ -97,6 +97,13 @@ void write_atomically(const std::filesystem::path& path, WriteFn&& write) {
     std::filesystem::remove(tmp, ec);
     throw;
   }
-  std::filesystem::rename(tmp, path);
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::error_code ignored;
+    std::filesystem::remove(tmp, ignored);
+    throw std::filesystem::filesystem_error("cannot move the finished file into place", tmp, path,
+                                            ec);
+  }
 }
 }  // namespace pbve

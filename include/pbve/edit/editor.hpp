@@ -49,18 +49,35 @@ struct EditCallbacks {
   std::function<std::unique_ptr<Simulator>(const EngineRecipe&)> make_simulator;
 };
 
-/// What a run produced.
+/// How a run ended.
+enum class EditStatus {
+  completed,  ///< every frame was edited
+  cancelled,  ///< the cancel hook stopped it after a frame
+  diverged,   ///< the simulation diverged in a frame even with 4x the substeps
+};
+
+/// What a run produced. When the run stopped early (cancelled or diverged) the video holds
+/// the frames edited so far and the report is marked incomplete (Report::complete,
+/// Report::stopped_at, Report::stopped_reason); both are still written.
 struct EditResult {
   Report report;
   std::filesystem::path video;
   std::filesystem::path report_path;
-  bool complete = true;
+  bool complete = true;  ///< status == EditStatus::completed
+  EditStatus status = EditStatus::completed;
 };
 
 /// Runs the whole edit: reads the scene's inputs, simulates, controls, renders, writes the
 /// video and the report (each through a temporary name renamed when complete). Throws
 /// InputError for bad input (before any output is written) with the file, line or key at
-/// fault; refuses to write over an input file.
+/// fault; refuses to write over an input file. An exception leaves no output file (nor a
+/// temporary one) behind.
+///
+/// Runtime faults: a frame whose simulation diverges (non-finite or runaway positions, or the
+/// engine throws) is recomputed with 2x, then 4x the substeps (recorded per frame in
+/// FrameRecord::substep_factor, with a warning); if that fails too the run stops there with
+/// EditStatus::diverged. When the control optimizer fails (throws, or returns non-finite
+/// forces or energy) the frame is simulated without control forces, with a warning.
 EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCallbacks& callbacks);
 
 }  // namespace pbve

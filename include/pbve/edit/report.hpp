@@ -21,6 +21,9 @@ struct FrameRecord {
   int iterations = 0;            ///< optimizer iterations
   std::string status;            ///< optimizer status ("converged", "off", ...)
   bool pose_lost = false;        ///< the input pose of this frame was `lost`
+  /// Multiple of the scene's substeps this frame was simulated with: 1, or 2 / 4 when the
+  /// simulation diverged at the scene's substeps and the frame was recomputed.
+  int substep_factor = 1;
 };
 
 /// Summary over the frames.
@@ -40,6 +43,7 @@ struct Report {
   std::vector<std::string> warnings;
   std::string settings_yaml;  ///< the resolved scene (scene_to_yaml()); written as JSON
   bool complete = true;       ///< false when the run stopped early (see stopped_reason)
+  int stopped_at = -1;        ///< when incomplete: the first input frame not edited
   std::string stopped_reason;
   std::string engine;  ///< simulator name
 

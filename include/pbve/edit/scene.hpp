@@ -105,6 +105,12 @@ struct Scene {
   SceneSimulation simulation;
   SceneControl control;
   SceneOutput output;
+  /// 1-based line of every key given in the file, by dotted name ("camera.cx",
+  /// "simulation.density"), for messages about values checked after parsing.
+  std::map<std::string, int> lines;
+
+  /// Line of `key` (dotted name) in the file, or 0 when it was not given.
+  int line_of(const std::string& key) const;
 };
 
 /// Parses a scene file. Throws InputError naming the file, the line and the key for YAML

@@ -1,0 +1,456 @@
+// Bad input through the pbve command: every case must fail (or warn) with a message that says
+// what is wrong and where (file, line, key), and leave no file under the output names — the
+// edited video and the report are written under temporary names and renamed when complete.
+//
+// Each case starts from a tiny synthetic scene (64x48 pixels, 3 frames, --no-control) and
+// breaks one thing in it.
+
+#include <algorithm>
+#include <filesystem>
+#include <initializer_list>
+#include <sstream>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "pbve/core/footage.hpp"
+#include "pbve/edit/report.hpp"
+#include "support/cli.hpp"
+#include "support/test_util.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using pbve::test::CmdResult;
+using pbve::test::pbve_cmd;
+using pbve::test::read_text;
+using pbve::test::write_text;
+
+/// 1-based number of the first line of `text` containing `needle` (0 if none).
+int line_containing(const std::string& text, const std::string& needle) {
+  const size_t at = text.find(needle);
+  if (at == std::string::npos) return 0;
+  return 1 + static_cast<int>(std::count(text.begin(), text.begin() + static_cast<long>(at), '\n'));
+}
+
+class BadInput : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const CmdResult r =
+        pbve_cmd("synth --size 64x48 --frames 3 --supersample 1 " + dir.path().string());
+    ASSERT_EQ(r.status, 0) << r.output;
+    scene = dir / "scene.yaml";
+  }
+
+  /// Replaces the first `from` in `file` by `to` (which must be there).
+  void replace(const fs::path& file, const std::string& from, const std::string& to) {
+    std::string text = read_text(file);
+    const size_t at = text.find(from);
+    ASSERT_NE(at, std::string::npos) << from << " not in " << file;
+    text.replace(at, from.size(), to);
+    write_text(file, text);
+  }
+  /// Replaces the scene line starting with `prefix` (after indentation) by `line`.
+  void replace_scene_line(const std::string& prefix, const std::string& line) {
+    std::string text = read_text(scene);
+    const size_t at = text.find(prefix);
+    ASSERT_NE(at, std::string::npos) << prefix;
+    const size_t bol = text.rfind('\n', at) + 1;
+    text.replace(bol, text.find('\n', at) - bol, line);
+    write_text(scene, text);
+  }
+  /// Sets value `index` (1-based) of line `line` (1-based) of the pose file to `value`.
+  void set_pose_value(int line, int index, const std::string& value) {
+    std::istringstream in(read_text(dir / "poses.txt"));
+    std::string out, text;
+    for (int l = 1; std::getline(in, text); ++l) {
+      if (l == line) {
+        std::istringstream fields(text);
+        std::string field, rebuilt;
+        for (int k = 1; fields >> field; ++k)
+          rebuilt += (k > 1 ? " " : "") + (k == index ? value : field);
+        text = rebuilt;
+      }
+      out += text + "\n";
+    }
+    write_text(dir / "poses.txt", out);
+  }
+  /// Line of `needle` in the scene file.
+  int scene_line(const std::string& needle) { return line_containing(read_text(scene), needle); }
+  std::string location(const std::string& needle) {
+    return "scene.yaml:" + std::to_string(scene_line(needle)) + ": ";
+  }
+
+  /// `pbve edit SCENE --quiet --no-control EXTRA`.
+  CmdResult edit(const std::string& extra = {}) {
+    return pbve_cmd("edit " + scene.string() + " --quiet --no-control " + extra);
+  }
+
+  /// Exit status 1, every piece of `expected` in the message, nothing under the output names.
+  void expect_error(const CmdResult& r, std::initializer_list<std::string> expected,
+                    std::initializer_list<fs::path> outputs = {}) {
+    EXPECT_EQ(r.status, 1) << r.output;
+    EXPECT_NE(r.output.find("pbve edit: error: "), std::string::npos) << r.output;
+    for (const auto& e : expected)
+      EXPECT_NE(r.output.find(e), std::string::npos) << e << "\n" << r.output;
+    expect_no_output(outputs);
+  }
+  void expect_no_output(std::initializer_list<fs::path> outputs = {}) {
+    std::vector<fs::path> all = {dir / "edited.mp4", dir / "report.json"};
+    all.insert(all.end(), outputs.begin(), outputs.end());
+    for (const auto& p : all) {
+      EXPECT_FALSE(fs::exists(p)) << p;
+      EXPECT_FALSE(fs::exists(pbve::partial_path(p))) << pbve::partial_path(p);
+    }
+  }
+
+  /// Runs and expects success with a warning containing every piece of `expected`, in the
+  /// output and in the report.
+  void expect_warning(std::initializer_list<std::string> expected) {
+    const CmdResult r = edit();
+    ASSERT_EQ(r.status, 0) << r.output;
+    const pbve::Report rep = pbve::read_report(dir / "report.json");
+    EXPECT_EQ(rep.frames.size(), 3u);
+    EXPECT_EQ(pbve::Footage::open_video(dir / "edited.mp4").frame_count(), 3);
+    for (const auto& e : expected) {
+      EXPECT_NE(r.output.find("warning: "), std::string::npos) << r.output;
+      EXPECT_NE(r.output.find(e), std::string::npos) << e << "\n" << r.output;
+      EXPECT_TRUE(std::any_of(rep.warnings.begin(), rep.warnings.end(), [&](const std::string& w) {
+        return w.find(e) != std::string::npos;
+      })) << e;
+    }
+  }
+
+  pbve::test::TempDir dir;
+  fs::path scene;
+};
+
+// ---- the scene file --------------------------------------------------------------------------
+
+TEST_F(BadInput, MissingSceneFile) {
+  fs::remove(scene);
+  expect_error(edit(), {"scene.yaml: scene file not found"});
+}
+
+TEST_F(BadInput, SceneFileIsAFolder) {
+  fs::remove(scene);
+  fs::create_directory(scene);
+  expect_error(edit(), {"scene.yaml: the scene file is a folder"});
+}
+
+TEST_F(BadInput, EmptySceneFile) {
+  write_text(scene, "# nothing here\n");
+  expect_error(edit(), {"scene.yaml: the scene file is empty"});
+}
+
+TEST_F(BadInput, MalformedYamlNamesTheLine) {
+  replace(scene, "  scale: 1.01", "  scale: 1.01: 2");
+  expect_error(edit(), {location("scale:") + "YAML syntax error"});
+}
+
+TEST_F(BadInput, UnknownTopLevelKeySuggestsTheNearest) {
+  replace(scene, "output:", "outptu:");
+  expect_error(edit(),
+               {location("outptu:") + "key 'outptu': unknown key", "did you mean 'output'?"});
+}
+
+TEST_F(BadInput, MistypedCameraKeySuggestsTheNearest) {
+  replace(scene, "fx:", "fxx:");
+  expect_error(edit(), {location("fxx:") + "key 'camera.fxx': unknown key", "did you mean 'fx'?"});
+}
+
+TEST_F(BadInput, MistypedMaterialParameterSuggestsTheNearest) {
+  replace(scene, "  substeps: 3", "  substeps: 3\n  densty: 30");
+  expect_error(edit(),
+               {location("densty:") + "key 'simulation.densty'", "did you mean 'density'?"});
+}
+
+TEST_F(BadInput, WrongTypeNamesTheKey) {
+  replace(scene, "substeps: 3", "substeps: many");
+  expect_error(edit(), {location("substeps:") + "key 'simulation.substeps'",
+                        "expected a number, found 'many'"});
+}
+
+// ---- the mesh ----------------------------------------------------------------------------------
+
+TEST_F(BadInput, MissingMesh) {
+  fs::remove(dir / "object.obj");
+  expect_error(edit(), {location("mesh:") + "key 'object.mesh': mesh file not found",
+                        (dir / "object.obj").string()});
+}
+
+TEST_F(BadInput, UnreadableMesh) {
+  // A folder in place of the file (file permissions do not stop a root user).
+  fs::remove(dir / "object.obj");
+  fs::create_directory(dir / "object.obj");
+  expect_error(edit(), {location("mesh:") + "key 'object.mesh': mesh file is a folder"});
+}
+
+TEST_F(BadInput, EmptyMesh) {
+  write_text(dir / "object.obj", "# no geometry\n");
+  expect_error(edit(), {"object.obj: empty mesh: the file has no vertices"});
+}
+
+TEST_F(BadInput, FaceIndexOutOfRangeNamesTheLine) {
+  std::string obj = read_text(dir / "object.obj");
+  obj += "f 1 2 999\n";
+  write_text(dir / "object.obj", obj);
+  const int line = line_containing(obj, "f 1 2 999");
+  expect_error(edit(), {"object.obj:" + std::to_string(line) + ": vertex index 999 out of range"});
+}
+
+TEST_F(BadInput, NonFiniteMeshVertexNamesTheLine) {
+  const std::string obj = read_text(dir / "object.obj");
+  const int line = line_containing(obj, "\nv ") + 1;
+  replace(dir / "object.obj", "\nv ", "\nv nan ");
+  // "v nan x y z" has 4 numbers; the first three are read, the first is NaN.
+  expect_error(edit(), {"object.obj:" + std::to_string(line) + ": non-finite coordinate 'nan'"});
+}
+
+TEST_F(BadInput, MalformedPlyHeaderNamesTheLine) {
+  write_text(dir / "object.ply", "ply\nformat ascii 1.0\nelement vertex three\nend_header\n");
+  replace(scene, "object.obj", "object.ply");
+  expect_error(edit(), {"object.ply:3: "});
+}
+
+TEST_F(BadInput, DegenerateTrianglesAreSimulatedWithAWarning) {
+  // A triangle with a repeated vertex and one with three collinear vertices.
+  std::string obj = read_text(dir / "object.obj");
+  obj += "f 1 1 2\nv 0 0 0\nv 0.001 0 0\nv 0.002 0 0\nf -1 -2 -3\n";
+  write_text(dir / "object.obj", obj);
+  expect_warning({"object.obj: 2 degenerate triangles", "simulated as given"});
+}
+
+TEST_F(BadInput, NonManifoldMeshIsSimulatedWithAWarning) {
+  // A third triangle on the edge 1-2.
+  std::string obj = read_text(dir / "object.obj");
+  obj += "v 0 0 0.05\nf 1 2 -1\n";
+  write_text(dir / "object.obj", obj);
+  expect_warning(
+      {"object.obj: 1 non-manifold edge shared by more than two triangles", "simulated as given"});
+}
+
+TEST_F(BadInput, MeshWithOnlyDegenerateTrianglesFails) {
+  write_text(dir / "object.obj", "v 0 0 0\nv 0.05 0 0\nv 0.1 0 0\nf 1 2 3\nf 3 2 1\n");
+  replace_scene_line("anchors:", "  anchors: {vertices: [0]}");
+  expect_error(edit(), {"object.obj: every triangle of the mesh is degenerate"});
+}
+
+// ---- the footage -------------------------------------------------------------------------------
+
+TEST_F(BadInput, MissingVideo) {
+  fs::remove(dir / "clip.mp4");
+  expect_error(edit(), {location("video: clip") + "key 'input.video': video file not found",
+                        (dir / "clip.mp4").string()});
+}
+
+TEST_F(BadInput, GarbageVideoHasNoDecodableFrame) {
+  std::string noise(4000, '\0');
+  for (size_t i = 0; i < noise.size(); ++i) noise[i] = static_cast<char>((i * 7919u) >> 3);
+  write_text(dir / "clip.mp4", noise);
+  expect_error(edit(), {"clip.mp4: not a readable video"});
+}
+
+TEST_F(BadInput, TruncatedVideoHasNoDecodableFrame) {
+  const std::string video = read_text(dir / "clip.mp4");
+  write_text(dir / "clip.mp4", video.substr(0, video.size() / 3));
+  expect_error(edit(), {"clip.mp4: ", "video"});
+}
+
+TEST_F(BadInput, EmptyImageSequence) {
+  replace_scene_line("input:", "input: {sequence: frames/%04d.png, fps: 30}");
+  expect_error(edit(), {"frames/%04d.png: empty image sequence"});
+}
+
+TEST_F(BadInput, FramesOutsideTheFootage) {
+  expect_error(edit("--frames 10:20"),
+               {"clip.mp4: frames 10:20 requested, but the footage has 3 frames"});
+}
+
+// ---- the poses ---------------------------------------------------------------------------------
+
+TEST_F(BadInput, MissingPoses) {
+  fs::remove(dir / "poses.txt");
+  expect_error(edit(), {location("poses:") + "key 'object.poses': pose file not found"});
+}
+
+TEST_F(BadInput, FewerPosesThanFramesNamesBothCounts) {
+  const std::string poses = read_text(dir / "poses.txt");
+  write_text(dir / "poses.txt", poses.substr(0, poses.find('\n', poses.find('\n') + 1) + 1));
+  expect_error(edit(), {"poses.txt: the pose file has 2 poses but the footage has 3 frames"});
+}
+
+TEST_F(BadInput, MorePosesThanFramesWarnsAndRuns) {
+  const std::string poses = read_text(dir / "poses.txt");
+  write_text(dir / "poses.txt", poses + poses.substr(0, poses.find('\n') + 1));
+  expect_warning({"the pose file has 4 poses for 3 frames: the extra poses are ignored"});
+}
+
+TEST_F(BadInput, NanInAPoseNamesTheLine) {
+  set_pose_value(2, 1, "nan");
+  expect_error(edit(), {"poses.txt:2: value 1 is not finite: 'nan'"});
+}
+
+TEST_F(BadInput, InfInAPoseNamesTheLine) {
+  set_pose_value(3, 4, "inf");
+  expect_error(edit(), {"poses.txt:3: value 4 is not finite: 'inf'"});
+}
+
+TEST_F(BadInput, PoseThatIsNotARotationNamesTheLine) {
+  set_pose_value(2, 1, "2");  // scales the first row of the rotation
+  expect_error(edit(), {"poses.txt:2: the 3x3 part is not a rotation"});
+}
+
+TEST_F(BadInput, PoseLineWithFiveNumbersNamesTheLine) {
+  std::string poses = read_text(dir / "poses.txt");
+  poses = "# comment line\n0 0 0 0 0\n" + poses;
+  write_text(dir / "poses.txt", poses);
+  expect_error(edit(), {"poses.txt:2: expected 16 or 6 numbers or 'lost', found 5"});
+}
+
+TEST_F(BadInput, EveryPoseLost) {
+  write_text(dir / "poses.txt", "lost\nlost\nlost\n");
+  expect_error(edit(), {"poses.txt: every pose is 'lost'"});
+}
+
+// ---- anchors -----------------------------------------------------------------------------------
+
+TEST_F(BadInput, AnchorIndexOutOfRangeNamesTheKey) {
+  replace_scene_line("anchors:", "  anchors: {vertices: [0, 9999]}");
+  expect_error(edit(), {location("anchors:") + "key 'object.anchors.vertices': anchor vertex 9999 "
+                                               "is out of range"});
+}
+
+TEST_F(BadInput, NegativeAnchorIndexNamesTheKey) {
+  replace_scene_line("anchors:", "  anchors: {vertices: [-1]}");
+  expect_error(edit(), {location("anchors:") + "key 'object.anchors.vertices'", "negative"});
+}
+
+TEST_F(BadInput, AnchorBoxSelectingNoVertexWarns) {
+  replace_scene_line("anchors:", "  anchors: {box: {min: [5, 5, 5], max: [6, 6, 6]}}");
+  expect_warning({location("anchors:") + "key 'object.anchors.box': selects no vertex"});
+}
+
+// ---- physical parameters -----------------------------------------------------------------------
+
+TEST_F(BadInput, NegativeDensityNamesTheKey) {
+  replace(scene, "  substeps: 3", "  substeps: 3\n  density: -1");
+  expect_error(edit(),
+               {location("density:") + "key 'simulation.density'", "density must be positive"});
+}
+
+TEST_F(BadInput, ZeroStiffnessNamesTheKey) {
+  replace(scene, "  substeps: 3", "  substeps: 3\n  stretch_stiffness: 0");
+  expect_error(edit(), {location("stretch_stiffness:") + "key 'simulation.stretch_stiffness'",
+                        "stretch_stiffness must be positive"});
+}
+
+TEST_F(BadInput, ZeroSubstepsNamesTheKey) {
+  replace(scene, "substeps: 3", "substeps: 0");
+  expect_error(edit(), {location("substeps:") + "key 'simulation.substeps': must be between 1"});
+}
+
+TEST_F(BadInput, NonPositiveFrameRateNamesTheKey) {
+  // A single picture takes its frame rate (the time step 1/fps) from the scene.
+  const cv::Mat frame = pbve::Footage::open_video(dir / "clip.mp4").frame(0);
+  ASSERT_TRUE(cv::imwrite((dir / "picture.png").string(), frame));
+  replace_scene_line("input:", "input: {image: picture.png, frames: 3, fps: 0}");
+  expect_error(edit(), {location("input:") + "key 'input.fps': must be positive, found 0"});
+}
+
+// ---- camera ------------------------------------------------------------------------------------
+
+TEST_F(BadInput, NonPositiveFocalLengthNamesTheKey) {
+  replace(scene, "fy: 60", "fy: -60");
+  expect_error(edit(), {location("camera:") + "key 'camera.fy': must be positive, found -60"});
+}
+
+TEST_F(BadInput, PrincipalPointOutsideTheImageNamesTheKey) {
+  replace(scene, "cy: 23.5", "cy: 480");
+  expect_error(edit(), {location("camera:") + "key 'camera.cy': principal point y 480 lies "
+                                              "outside the image (height 48)"});
+}
+
+// ---- background --------------------------------------------------------------------------------
+
+TEST_F(BadInput, MissingBackgroundPlate) {
+  write_text(scene, read_text(scene) + "background: {plate: plate.png}\n");
+  expect_error(edit(), {location("background:") + "key 'background.plate': background plate not "
+                                                  "found"});
+}
+
+TEST_F(BadInput, UnreadableBackgroundPlate) {
+  write_text(dir / "plate.png", "not an image");
+  write_text(scene, read_text(scene) + "background: {plate: plate.png}\n");
+  expect_error(edit(), {"plate.png: cannot read the background plate"});
+}
+
+TEST_F(BadInput, BackgroundPlateOfTheWrongSize) {
+  write_text(scene, read_text(scene) + "background: {plate: plate_true.png}\n");
+  ASSERT_TRUE(cv::imwrite((dir / "plate_true.png").string(), cv::Mat(10, 20, CV_8UC3)));
+  expect_error(edit(), {"plate_true.png: background plate is 20x10, the footage is 64x48"});
+}
+
+// ---- outputs -----------------------------------------------------------------------------------
+
+TEST_F(BadInput, OutputVideoEqualToTheInputVideo) {
+  const std::string before = read_text(dir / "clip.mp4");
+  expect_error(edit("-o " + (dir / "clip.mp4").string()),
+               {"clip.mp4: the output would overwrite the input file"});
+  EXPECT_EQ(read_text(dir / "clip.mp4"), before);
+}
+
+TEST_F(BadInput, ReportEqualToTheMeshNamesTheKey) {
+  const std::string before = read_text(dir / "object.obj");
+  replace(scene, "report: report.json", "report: object.obj");
+  expect_error(edit(), {location("output:") + "key 'output.report': the output would overwrite "
+                                              "the input file",
+                        "object.obj"});
+  EXPECT_EQ(read_text(dir / "object.obj"), before);
+}
+
+TEST_F(BadInput, VideoAndReportTheSameFile) {
+  replace(scene, "report: report.json", "report: edited.mp4");
+  expect_error(edit(), {location("output:") + "key 'output.report': the video and the report "
+                                              "would be the same file"});
+}
+
+TEST_F(BadInput, OutputFolderMissing) {
+  expect_error(edit("-o " + (dir / "no_such_folder" / "out.mp4").string()),
+               {"out.mp4: the output folder", "no_such_folder does not exist"});
+}
+
+TEST_F(BadInput, OutputFolderUnwritable) {
+  // /proc accepts no new files, even from root.
+  expect_error(edit("--report /proc/pbve_report.json"),
+               {"/proc/pbve_report.json: cannot create files in the output folder /proc"},
+               {"/proc/pbve_report.json"});
+}
+
+TEST_F(BadInput, UnsupportedVideoExtension) {
+  expect_error(edit("-o " + (dir / "edited.xyz").string()),
+               {"edited.xyz: no video codec for the extension '.xyz'", ".mp4"},
+               {dir / "edited.xyz"});
+}
+
+// ---- pbve plot and pbve synth -----------------------------------------------------------------
+
+TEST_F(BadInput, PlotOfAnInvalidReportWritesNoPlot) {
+  write_text(dir / "bad.json", "{\"frames\": [{\"index\": 0}]}");
+  const CmdResult r = pbve_cmd("plot " + (dir / "bad.json").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("bad.json: not a pbve report"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "bad.png"));
+  EXPECT_FALSE(fs::exists(dir / "bad.partial.png"));
+}
+
+TEST_F(BadInput, SynthWithABadFrameRateIsAUsageError) {
+  const CmdResult r = pbve_cmd("synth --fps zero " + (dir / "s").string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("--fps expects a positive number, got 'zero'"), std::string::npos)
+      << r.output;
+  EXPECT_FALSE(fs::exists(dir / "s"));
+}
+
+}  // namespace
