@@ -56,6 +56,9 @@ class RuntimeFaults : public ::testing::Test {
       scene.object.refine = 0.0;
       scene.control.active_set = "all";
       scene.control.max_iterations = 5;
+      // lT > lF: the optimizer runs in every frame (with lF >= lT it is skipped in frames
+      // where zero control keeps everything hidden, and these faults need it to run).
+      scene.control.weight_temporal = 2.0 * scene.control.weight_force;
     }
     pbve::EditOptions options;
     options.control = control;
