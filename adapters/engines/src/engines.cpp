@@ -72,6 +72,8 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
       field = &p.newton_tolerance;
     else if (key == "newton_iterations")
       int_field = &p.newton_iterations;
+    else if (key == "direct_solver_max_dofs")
+      int_field = &p.direct_solver_max_dofs;
     if (!field && !int_field) {
       const auto names = engine_parameters("mass_spring");
       std::string msg = "unknown key for engine mass_spring";
@@ -193,10 +195,10 @@ std::vector<std::string> available_engines() {
 
 std::vector<std::string> engine_parameters(const std::string& engine) {
   if (engine == "mass_spring")
-    return {"density",           "stretch_stiffness", "shear_stiffness",   "bend_stiffness",
-            "layer_stiffness",   "layer_distance",    "volume_stiffness",  "lattice_spacing",
-            "damping_alpha",     "damping_beta",      "contact_stiffness", "friction_velocity",
-            "newton_iterations", "newton_tolerance"};
+    return {"density",           "stretch_stiffness", "shear_stiffness",       "bend_stiffness",
+            "layer_stiffness",   "layer_distance",    "volume_stiffness",      "lattice_spacing",
+            "damping_alpha",     "damping_beta",      "contact_stiffness",     "friction_velocity",
+            "newton_iterations", "newton_tolerance",  "direct_solver_max_dofs"};
   if (engine == "bullet")
     return {"density",          "linear_stiffness",   "bending_stiffness", "shape_matching",
             "volume_stiffness", "pressure",           "damping",           "friction",
