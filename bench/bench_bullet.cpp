@@ -21,6 +21,7 @@
 #include <benchmark/benchmark.h>
 
 #include "control/cloth_scene.hpp"
+#include "control_frames.hpp"
 #include "pbve/bullet/bullet.hpp"
 
 namespace {
@@ -52,10 +53,6 @@ std::unique_ptr<pbve::Simulator> start(const pbve::test::ClothScene& scene) {
   return sim;
 }
 
-double ms_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
-
 void BM_BulletFrames(benchmark::State& state) {
   const int mode = static_cast<int>(state.range(0));
   const pbve::test::ClothScene scene = make_scene();
@@ -67,34 +64,7 @@ void BM_BulletFrames(benchmark::State& state) {
   o.max_evaluations = std::max(1, static_cast<int>(state.range(1)));
   o.gradient = GradientMode::central;
   o.clusters = mode == 2 ? 16 : 0;
-  double violation = 0.0, ratio = 0.0, ms = 0.0, evaluations = 0.0, variables = 0.0;
-  for (auto _ : state) {
-    ms = violation = evaluations = variables = 0.0;
-    const auto t0 = std::chrono::steady_clock::now();
-    auto sim = sim0->clone();
-    ControlOptimizer opt(scene.two_sided, {}, o);
-    std::vector<double> ratios;
-    for (size_t k = 0; k < inputs.size(); ++k) {
-      const auto r = mode == 0 ? opt.step_uncontrolled(*sim, inputs[k])
-                               : opt.step(*sim, std::span(&inputs[k], 1));
-      ratios.push_back(r.physical_force > 0.0 ? r.control_force / r.physical_force : 0.0);
-      evaluations += r.evaluations;
-      variables += r.variables;
-      const auto t1 = std::chrono::steady_clock::now();
-      violation += scene.violation_pct(sim->positions(), kFirst + static_cast<int>(k));
-      ms -= ms_since(t1);
-    }
-    ms += ms_since(t0);
-    std::sort(ratios.begin(), ratios.end());
-    ratio = ratios[ratios.size() / 2];
-  }
-  const auto n = static_cast<double>(inputs.size());
-  state.counters["ms_per_frame"] = ms / n;
-  state.counters["violation_pct"] = violation / n;
-  state.counters["force_ratio"] = ratio;
-  state.counters["evals_per_frame"] = evaluations / n;
-  state.counters["variables"] = variables / n;
-  state.counters["vertices"] = scene.num_vertices();
+  pbve::bench::run_control_frames(state, scene, *sim0, kFirst, inputs, o, mode != 0);
 }
 
 void BM_BulletGradient(benchmark::State& state) {

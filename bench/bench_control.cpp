@@ -22,6 +22,7 @@
 #include <benchmark/benchmark.h>
 
 #include "control/cloth_scene.hpp"
+#include "control_frames.hpp"
 
 namespace {
 
@@ -56,10 +57,6 @@ std::unique_ptr<pbve::Simulator> start(const pbve::test::ClothScene& scene) {
 
 enum Mode { uncontrolled = 0, adjoint = 1, central_parallel = 2, central_serial = 3 };
 
-double ms_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
-
 void BM_Frames(benchmark::State& state) {
   const auto mode = static_cast<Mode>(state.range(0));
   const pbve::test::ClothScene scene = make_scene();
@@ -70,34 +67,7 @@ void BM_Frames(benchmark::State& state) {
   o.solver = pbve::ControlSolver::lbfgs;
   o.max_evaluations = std::max(1, static_cast<int>(state.range(1)));
   o.gradient = GradientMode::adjoint;
-  double violation = 0.0, ratio = 0.0, ms = 0.0, evaluations = 0.0;
-  for (auto _ : state) {
-    ms = 0.0;  // wall time of the frames, without the metric
-    const auto t0 = std::chrono::steady_clock::now();
-    auto sim = sim0->clone();
-    ControlOptimizer opt(scene.two_sided, {}, o);
-    std::vector<double> ratios;
-    violation = 0.0;
-    evaluations = 0.0;
-    for (size_t k = 0; k < inputs.size(); ++k) {
-      const auto r = mode == uncontrolled ? opt.step_uncontrolled(*sim, inputs[k])
-                                          : opt.step(*sim, std::span(&inputs[k], 1));
-      ratios.push_back(r.physical_force > 0.0 ? r.control_force / r.physical_force : 0.0);
-      evaluations += r.evaluations;
-      const auto t1 = std::chrono::steady_clock::now();
-      violation += scene.violation_pct(sim->positions(), kFirst + static_cast<int>(k));
-      ms -= ms_since(t1);
-    }
-    ms += ms_since(t0);
-    std::sort(ratios.begin(), ratios.end());
-    ratio = ratios[ratios.size() / 2];
-    violation /= static_cast<double>(inputs.size());
-  }
-  state.counters["ms_per_frame"] = ms / static_cast<double>(inputs.size());
-  state.counters["violation_pct"] = violation;
-  state.counters["force_ratio"] = ratio;
-  state.counters["evals_per_frame"] = evaluations / static_cast<double>(inputs.size());
-  state.counters["vertices"] = scene.num_vertices();
+  pbve::bench::run_control_frames(state, scene, *sim0, kFirst, inputs, o, mode != uncontrolled);
 }
 
 void BM_Gradient(benchmark::State& state) {

@@ -20,6 +20,26 @@ namespace {
   throw InputError(message, r.scene_file, line, "key 'simulation." + key + "'");
 }
 
+/// Stores the `simulation:` parameter `key` into the field found for it, or fails naming the
+/// key, its line and the nearest valid name; integer fields reject fractional values.
+void store_parameter(const EngineRecipe& r, const std::string& engine, const std::string& key,
+                     int line, double value, double* field, int* int_field) {
+  if (!field && !int_field) {
+    const auto names = engine_parameters(engine);
+    std::string msg = "unknown key for engine " + engine;
+    const std::string near = nearest_key(key, names);
+    if (!near.empty()) msg += " (did you mean '" + near + "'?)";
+    msg += "; material parameters:";
+    for (const auto& n : names) msg += " " + n;
+    fail_key(r, key, line, msg);
+  }
+  if (field) *field = value;
+  if (int_field) {
+    if (value != static_cast<int>(value)) fail_key(r, key, line, "expected an integer");
+    *int_field = static_cast<int>(value);
+  }
+}
+
 #ifdef PBVE_ENGINE_MASS_SPRING
 std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
   namespace ms = mass_spring;
@@ -74,20 +94,7 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
       int_field = &p.newton_iterations;
     else if (key == "direct_solver_max_dofs")
       int_field = &p.direct_solver_max_dofs;
-    if (!field && !int_field) {
-      const auto names = engine_parameters("mass_spring");
-      std::string msg = "unknown key for engine mass_spring";
-      const std::string near = nearest_key(key, names);
-      if (!near.empty()) msg += " (did you mean '" + near + "'?)";
-      msg += "; material parameters:";
-      for (const auto& n : names) msg += " " + n;
-      fail_key(r, key, line, msg);
-    }
-    if (field) *field = value;
-    if (int_field) {
-      if (value != static_cast<int>(value)) fail_key(r, key, line, "expected an integer");
-      *int_field = static_cast<int>(value);
-    }
+    store_parameter(r, "mass_spring", key, line, value, field, int_field);
   }
   try {
     p.validate();
@@ -154,20 +161,7 @@ std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
       field = &p.hull_tolerance;
     else if (key == "position_iterations")
       int_field = &p.position_iterations;
-    if (!field && !int_field) {
-      const auto names = engine_parameters("bullet");
-      std::string msg = "unknown key for engine bullet";
-      const std::string near = nearest_key(key, names);
-      if (!near.empty()) msg += " (did you mean '" + near + "'?)";
-      msg += "; material parameters:";
-      for (const auto& n : names) msg += " " + n;
-      fail_key(r, key, line, msg);
-    }
-    if (field) *field = value;
-    if (int_field) {
-      if (value != static_cast<int>(value)) fail_key(r, key, line, "expected an integer");
-      *int_field = static_cast<int>(value);
-    }
+    store_parameter(r, "bullet", key, line, value, field, int_field);
   }
   try {
     p.validate();
