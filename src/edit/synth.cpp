@@ -283,8 +283,6 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     // The hand holds the middle 10 cm of the top edge.
     anchors = "{box: {min: [-0.05, -0.001, -1], max: [0.05, 0.001, 1]}}";
     extra_obj = "  refine: 0.05\n";
-    // The thin two-layer board makes block-Jacobi CG slow: factorize up to ~6.7k vertices.
-    extra_sim = "  direct_solver_max_dofs: 20000\n";
   } else if (o.shape == "figurine") {
     r.mesh = make_figurine(0.36, 32, 32);
     base = {0.0, 0.18, 1.3};

@@ -94,6 +94,8 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
       int_field = &p.newton_iterations;
     else if (key == "direct_solver_max_dofs")
       int_field = &p.direct_solver_max_dofs;
+    else if (key == "direct_solver_max_dofs_layered")
+      int_field = &p.direct_solver_max_dofs_layered;
     store_parameter(r, "mass_spring", key, line, value, field, int_field);
   }
   try {
@@ -189,10 +191,22 @@ std::vector<std::string> available_engines() {
 
 std::vector<std::string> engine_parameters(const std::string& engine) {
   if (engine == "mass_spring")
-    return {"density",           "stretch_stiffness", "shear_stiffness",       "bend_stiffness",
-            "layer_stiffness",   "layer_distance",    "volume_stiffness",      "lattice_spacing",
-            "damping_alpha",     "damping_beta",      "contact_stiffness",     "friction_velocity",
-            "newton_iterations", "newton_tolerance",  "direct_solver_max_dofs"};
+    return {"density",
+            "stretch_stiffness",
+            "shear_stiffness",
+            "bend_stiffness",
+            "layer_stiffness",
+            "layer_distance",
+            "volume_stiffness",
+            "lattice_spacing",
+            "damping_alpha",
+            "damping_beta",
+            "contact_stiffness",
+            "friction_velocity",
+            "newton_iterations",
+            "newton_tolerance",
+            "direct_solver_max_dofs",
+            "direct_solver_max_dofs_layered"};
   if (engine == "bullet")
     return {"density",          "linear_stiffness",   "bending_stiffness", "shape_matching",
             "volume_stiffness", "pressure",           "damping",           "friction",

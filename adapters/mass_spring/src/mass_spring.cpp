@@ -286,7 +286,10 @@ struct MassSpringSimulator::Impl {
       case LinearSolver::automatic:
         break;
     }
-    return dofs <= static_cast<size_t>(P().direct_solver_max_dofs);
+    const int limit = model->layer_ties > 0
+                          ? std::max(P().direct_solver_max_dofs, P().direct_solver_max_dofs_layered)
+                          : P().direct_solver_max_dofs;
+    return dofs <= static_cast<size_t>(limit);
   }
 
   // y = J x for the symmetric J stored with both triangles: row i is column i (parallel gather).

@@ -203,10 +203,13 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
     }
   }
 
-  if (params.material == Material::cloth && params.layer_stiffness > 0.0)
+  if (params.material == Material::cloth && params.layer_stiffness > 0.0) {
+    const size_t before = m.springs.size();
     add_layer_ties(positions, tris, vertex_area,
                    params.layer_distance > 0.0 ? params.layer_distance : m.char_length,
                    params.layer_stiffness, add_spring);
+    m.layer_ties = static_cast<int>(m.springs.size() - before);
+  }
 
   std::vector<Vector3d> lattice;  // interior node positions
   const bool solid = params.material != Material::cloth;

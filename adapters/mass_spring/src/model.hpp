@@ -30,6 +30,7 @@ struct Model {
   std::vector<int> free_index;  // per node: free block index, or -1 for anchors
   std::vector<int> free_nodes;  // free block -> node
   double char_length = 1.0;     // mean rest edge length of the surface, m
+  int layer_ties = 0;           // springs tying the two layers of a thin closed cloth
 
   // Free-free system matrix pattern (3 * #free square, both triangles stored, 3x3 blocks).
   Eigen::SparseMatrix<double> pattern;

@@ -88,6 +88,8 @@ void Params::validate() const {
   positive(adjoint_tolerance, "adjoint_tolerance");
   if (direct_solver_max_dofs < 0)
     bad("direct_solver_max_dofs", "non-negative", direct_solver_max_dofs);
+  if (direct_solver_max_dofs_layered < 0)
+    bad("direct_solver_max_dofs_layered", "non-negative", direct_solver_max_dofs_layered);
   positive(friction_velocity, "friction_velocity");
   if (!planes.empty()) positive(contact_stiffness, "contact_stiffness");
   for (size_t i = 0; i < planes.size(); ++i) {

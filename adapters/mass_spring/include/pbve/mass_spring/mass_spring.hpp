@@ -121,6 +121,10 @@ struct Params {
   /// Measured crossover (docs/benchmarks.md): direct is faster for a 484-vertex cloth, block
   /// Jacobi for 1k vertices and more.
   int direct_solver_max_dofs = 2000;
+  /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0):
+  /// there block-Jacobi CG needs thousands of iterations per solve, and factorizing is 5-7x
+  /// faster at 838 and 3 022 vertices (example 1's board; docs/benchmarks.md).
+  int direct_solver_max_dofs_layered = 20000;
   /// Iterative solver: relative residual of the adjoint solves in step_vjp() (> 0).
   double adjoint_tolerance = 1e-11;
 
