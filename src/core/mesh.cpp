@@ -7,10 +7,9 @@
 #include <cstdint>
 #include <stdexcept>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
-
-#include <Eigen/Geometry>
 
 #include <Eigen/Geometry>
 
@@ -350,6 +349,62 @@ Mesh refine_mesh(const Mesh& mesh, double max_edge_length) {
   out.part_names = mesh.part_names;
   if (out.part_names.empty() && out.num_triangles() > 0) out.part_names.push_back("default");
   return out;
+}
+
+std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const Triangles& t,
+                                                      double reach) {
+  if (!(reach > 0.0) || !std::isfinite(reach))
+    throw std::invalid_argument("opposite_layer_pairs: reach must be positive and finite");
+  using Eigen::Vector3d;
+  const int nv = static_cast<int>(x.rows());
+  std::vector<Vector3d> normal(static_cast<size_t>(nv), Vector3d::Zero());
+  for (Eigen::Index f = 0; f < t.rows(); ++f) {
+    const Vector3d n = (row(x, t(f, 1)) - row(x, t(f, 0))).cross(row(x, t(f, 2)) - row(x, t(f, 0)));
+    for (int k = 0; k < 3; ++k) normal[static_cast<size_t>(t(f, k))] += n;
+  }
+  for (Vector3d& n : normal)
+    if (n.norm() > 0.0) n.normalize();
+  const Vector3d lo = x.colwise().minCoeff().transpose();
+  auto cell_of = [&](const Vector3d& p) {
+    return Eigen::Vector3i(((p - lo) / reach).array().floor().cast<int>());
+  };
+  auto key = [](const Eigen::Vector3i& c) {
+    return (static_cast<std::int64_t>(c[0]) * 73856093) ^
+           (static_cast<std::int64_t>(c[1]) * 19349663) ^
+           (static_cast<std::int64_t>(c[2]) * 83492791);
+  };
+  std::unordered_map<std::int64_t, std::vector<int>> grid;
+  for (int i = 0; i < nv; ++i) grid[key(cell_of(row(x, i)))].push_back(i);
+
+  std::vector<std::pair<int, int>> ties;
+  for (int i = 0; i < nv; ++i) {
+    const Vector3d p = row(x, i), n = normal[static_cast<size_t>(i)];
+    if (!(n.norm() > 0.0)) continue;
+    const Eigen::Vector3i c = cell_of(p);
+    int best = -1;
+    double best_d = reach;
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const auto it = grid.find(key(c + Eigen::Vector3i(dx, dy, dz)));
+          if (it == grid.end()) continue;
+          for (int j : it->second) {
+            const Vector3d d = row(x, j) - p;
+            const double dist = d.norm();
+            // Behind i, facing the other way, mostly along -n (not a rim neighbour).
+            if (j == i || dist > best_d || normal[static_cast<size_t>(j)].dot(n) > -0.7 ||
+                -d.dot(n) < 0.7 * dist)
+              continue;
+            best = j;
+            best_d = dist;
+          }
+        }
+    if (best < 0) continue;
+    ties.emplace_back(std::min(i, best), std::max(i, best));
+  }
+  std::sort(ties.begin(), ties.end());
+  ties.erase(std::unique(ties.begin(), ties.end()), ties.end());
+  return ties;
 }
 
 }  // namespace pbve

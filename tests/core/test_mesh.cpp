@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include "pbve/core/error.hpp"
+#include "pbve/edit/synth.hpp"
 #include "support/test_util.hpp"
 
 namespace pbve {
@@ -780,6 +781,41 @@ TEST(MeshRefine, NothingToDoAndBadLimit) {
   EXPECT_TRUE(r.triangles == tet.triangles);
   EXPECT_THROW(refine_mesh(tet, 0.0), std::invalid_argument);
   EXPECT_THROW(refine_mesh(tet, std::nan("")), std::invalid_argument);
+}
+
+// A board 0.3 x 0.2 x 0.01 m refined to 2 cm edges. Every pair joins a vertex to its mirror
+// image on the other face, 1 cm behind it, and every vertex inside the faces (off the rim) is
+// paired exactly once. On the rim (the thin sides, refined into slivers) vertices may or may
+// not be paired depending on how their normals lean.
+TEST(MeshLayers, BoardFacesArePairedVertexToVertex) {
+  const Mesh board = refine_mesh(make_box_mesh(0.3, 0.2, 0.01), 0.02);
+  const auto pairs = opposite_layer_pairs(board.vertices, board.triangles, 0.015);
+  std::vector<int> partners(static_cast<size_t>(board.num_vertices()), 0);
+  for (const auto& [a, b] : pairs) {
+    EXPECT_LT(a, b);
+    const Eigen::RowVector3d d = board.vertices.row(b) - board.vertices.row(a);
+    EXPECT_NEAR(std::abs(d.z()), 0.01, 1e-12) << a << "-" << b;
+    EXPECT_NEAR(d.head<2>().norm(), 0.0, 1e-12) << a << "-" << b;
+    ++partners[static_cast<size_t>(a)];
+    ++partners[static_cast<size_t>(b)];
+  }
+  int inside = 0;
+  for (int i = 0; i < board.num_vertices(); ++i) {
+    const auto v = board.vertices.row(i);
+    if (std::abs(v.x()) > 0.15 - 1e-9 || v.y() < 1e-9 || v.y() > 0.2 - 1e-9) continue;
+    ++inside;
+    EXPECT_EQ(partners[static_cast<size_t>(i)], 1) << "vertex " << i << " at " << v;
+  }
+  EXPECT_GT(inside, 100);
+  // Reach shorter than the thickness: no pairs.
+  EXPECT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, 0.009).empty());
+  EXPECT_THROW(opposite_layer_pairs(board.vertices, board.triangles, 0.0), std::invalid_argument);
+}
+
+// A sphere has no opposite layer within a tenth of its radius.
+TEST(MeshLayers, ThickClosedSurfaceHasNoPairs) {
+  const Mesh ball = make_icosphere(0.1, 3);
+  EXPECT_TRUE(opposite_layer_pairs(ball.vertices, ball.triangles, 0.01).empty());
 }
 
 }  // namespace

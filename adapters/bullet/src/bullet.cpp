@@ -179,6 +179,7 @@ struct BulletSimulator::Impl {
 
   // Soft.
   Eigen::VectorXd node_mass;  // nominal mass per vertex (also for anchors), kg
+  int layer_ties = 0;         // links between the layers of a thin closed cloth
   // Rigid.
   std::vector<Piece> pieces;
   std::vector<int> vertex_piece;  // per vertex, -1 when in no triangle
@@ -363,6 +364,27 @@ void BulletSimulator::Impl::build_soft() {
       if (links.insert(key(opp[0], opp[1])).second) {
         sb.appendLink(opp[0], opp[1], bend);
         sb.m_links[sb.m_links.size() - 1].m_bbending = 1;
+      }
+    }
+  }
+
+  // Ties between the layers of a thin closed cloth, after the bending links.
+  if (p.material == Material::cloth && p.layer_stiffness > 0.0) {
+    double reach = p.layer_distance;
+    if (!(reach > 0.0)) {
+      double total = 0.0;
+      for (const auto& [a, b] : links) total += (x.row(b) - x.row(a)).norm();
+      reach = links.empty() ? 0.0 : total / static_cast<double>(links.size());
+    }
+    if (reach > 0.0) {
+      btSoftBody::Material* tie = sb.appendMaterial();
+      tie->m_kLST = p.layer_stiffness;
+      tie->m_kAST = 1.0;
+      tie->m_kVST = 1.0;
+      for (const auto& [a, b] : opposite_layer_pairs(x, t, reach)) {
+        if (!links.insert(key(a, b)).second) continue;
+        sb.appendLink(a, b, tie);
+        ++layer_ties;
       }
     }
   }
@@ -901,6 +923,10 @@ std::unique_ptr<Simulator> BulletSimulator::clone() const {
 
 const Params& BulletSimulator::params() const {
   return m_impl->recipe->params;
+}
+
+int BulletSimulator::num_layer_ties() const {
+  return m_impl->layer_ties;
 }
 
 int BulletSimulator::num_bodies() const {

@@ -88,6 +88,8 @@ void Params::validate() const {
   positive(density, "density");
   fraction(linear_stiffness, "linear_stiffness", false, true);
   fraction(bending_stiffness, "bending_stiffness", true, true);
+  fraction(layer_stiffness, "layer_stiffness", true, true);
+  non_negative(layer_distance, "layer_distance");
   fraction(shape_matching, "shape_matching", true, true);
   non_negative(volume_stiffness, "volume_stiffness");
   non_negative(pressure, "pressure");

@@ -141,6 +141,10 @@ std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
       field = &p.linear_stiffness;
     else if (key == "bending_stiffness")
       field = &p.bending_stiffness;
+    else if (key == "layer_stiffness")
+      field = &p.layer_stiffness;
+    else if (key == "layer_distance")
+      field = &p.layer_distance;
     else if (key == "shape_matching")
       field = &p.shape_matching;
     else if (key == "volume_stiffness")
@@ -208,10 +212,10 @@ std::vector<std::string> engine_parameters(const std::string& engine) {
             "direct_solver_max_dofs",
             "direct_solver_max_dofs_layered"};
   if (engine == "bullet")
-    return {"density",          "linear_stiffness",   "bending_stiffness", "shape_matching",
-            "volume_stiffness", "pressure",           "damping",           "friction",
-            "collision_margin", "linear_damping",     "angular_damping",   "restitution",
-            "hull_tolerance",   "position_iterations"};
+    return {"density",         "linear_stiffness", "bending_stiffness", "layer_stiffness",
+            "layer_distance",  "shape_matching",   "volume_stiffness",  "pressure",
+            "damping",         "friction",         "collision_margin",  "linear_damping",
+            "angular_damping", "restitution",      "hull_tolerance",    "position_iterations"};
   return {};
 }
 

@@ -86,4 +86,13 @@ std::vector<std::vector<int>> vertex_adjacency(const Triangles& triangles, int n
 /// Longest edge length of the mesh.
 double max_edge_length(const Mesh& mesh);
 
+/// Pairs of vertices facing each other across a thin closed surface (a board, a thick sheet):
+/// each vertex is paired with the nearest vertex at most `reach` away that lies behind it
+/// (mostly along minus its normal) and whose area-weighted normal points the other way.
+/// Vertices on the rim, where the two layers meet, find no partner. Each pair appears once
+/// with first < second, sorted. Engines tie such pairs so that the two layers of a board made
+/// into cloth do not pass through each other.
+std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& vertices,
+                                                      const Triangles& triangles, double reach);
+
 }  // namespace pbve

@@ -60,6 +60,14 @@ struct Params {
   /// Soft: stiffness of the bending links between the opposite vertices of each pair of
   /// adjacent triangles, in [0, 1]; 0 creates no bending links.
   double bending_stiffness = 0.1;
+  /// Cloth: stiffness of the links tying the two layers of a thin closed surface, in [0, 1]
+  /// (0 creates none). A board or a thick sheet made into cloth is two layers joined at the
+  /// rim; Bullet's cloth has no self-collision, so without ties the back layer drifts through
+  /// the front one. Each vertex is linked to the nearest vertex of the opposite layer
+  /// (pbve::opposite_layer_pairs()). The links keep the layers' distance, not their alignment.
+  double layer_stiffness = 0.5;
+  /// Cloth: largest distance between tied layers, metres; 0 uses the mean edge length.
+  double layer_distance = 0.0;
   /// Soft: shape matching, in [0, 1] (Bullet's kMT): each substep pulls every node this
   /// fraction of the way towards the best rigid motion of the rest shape.
   double shape_matching = 0.0;
@@ -99,7 +107,8 @@ struct Params {
   std::vector<Plane> planes;
 
   /// Defaults for a material:
-  /// - cloth: 0.3 kg/m^2, links 0.9, bending 0.1, damping 0.01, 4 iterations, margin 2 mm;
+  /// - cloth: 0.3 kg/m^2, links 0.9, bending 0.1, layer ties 0.5, damping 0.01, 4 iterations,
+  ///   margin 2 mm;
   /// - elastic: 1000 kg/m^3, links 0.2, bending 0.1, volume 2e4 Pa, shape matching 0.01,
   ///   damping 0.02, 4 iterations;
   /// - stiff: 1000 kg/m^3, links 1, bending 1, volume 2e6 Pa, shape matching 0.5, damping
@@ -173,6 +182,9 @@ class BulletSimulator final : public Simulator {
   /// Rigid: centre of mass of each body, camera frame, #bodies by 3. Soft: the mass-weighted
   /// mean of the free nodes (one row).
   Vertices centers_of_mass() const;
+  /// Cloth: number of links tying the two layers of a thin closed surface (layer_stiffness);
+  /// 0 for other materials or when none were found.
+  int num_layer_ties() const;
 
  private:
   BulletSimulator();  // for clone()
