@@ -91,11 +91,22 @@ class WindowProblem {
     }
     m_weights = weights;
     m_previous = previous.size() == m_size ? previous : Eigen::VectorXd::Zero(m_size);
+    // Torques count as the force |tau| / arm_b (EF, ET) and are scaled by m_b g0 arm_b.
+    m_arm = Eigen::VectorXd::Constant(m_layout.num_blocks, options.torque_arm);
+    if (m_bs == 6 && m_layout.block_arm.size() == m_layout.num_blocks)
+      for (int b = 0; b < m_layout.num_blocks; ++b)
+        if (m_layout.block_arm[b] > 0.0 && std::isfinite(m_layout.block_arm[b]))
+          m_arm[b] = m_layout.block_arm[b];
     m_eps.resize(m_layout.num_blocks * (m_bs / 3));
     for (int b = 0; b < m_layout.num_blocks; ++b)
       for (int p = 0; p < m_bs / 3; ++p)
-        m_eps[b * (m_bs / 3) + p] = options.force_smoothing * m_layout.block_mass[b] *
-                                    kStandardGravity * (p == 0 ? 1.0 : options.torque_arm);
+        m_eps[b * (m_bs / 3) + p] =
+            options.force_smoothing * m_layout.block_mass[b] * kStandardGravity;
+    if (m_bs == 6) {
+      m_force_scale = Eigen::VectorXd::Ones(m_size);
+      for (int b = 0; b < m_layout.num_blocks; ++b)
+        m_force_scale.segment(6 * b + 3, 3).setConstant(1.0 / m_arm[b]);
+    }
     m_force_unit = kStandardGravity * m_layout.block_mass.sum();
     if (!(m_force_unit > 0.0)) m_force_unit = 1.0;
     m_fixed.assign(static_cast<size_t>(frames), Eigen::VectorXd::Zero(m_size));
@@ -119,8 +130,8 @@ class WindowProblem {
     m_columns.clear();
     for (int b : m_active)
       for (int c = 0; c < m_bs; ++c)
-        m_columns.push_back({{b * m_bs + c, m_layout.block_mass[b] * kStandardGravity *
-                                                (c < 3 ? 1.0 : m_options.torque_arm)}});
+        m_columns.push_back(
+            {{b * m_bs + c, m_layout.block_mass[b] * kStandardGravity * (c < 3 ? 1.0 : m_arm[b])}});
     m_nv = static_cast<int>(m_columns.size());
   }
   // Reduced control space (vertex forces): variable 3 c + d is the acceleration along axis d,
@@ -197,10 +208,23 @@ class WindowProblem {
     double ef = 0.0, et = 0.0;
     Eigen::VectorXd g1, g2;
     if (grad) grad->assign(u.size(), Eigen::VectorXd::Zero(m_size));
+    // Body wrenches: torques as forces at the lever arm (u scaled by m_force_scale).
+    const bool scaled = m_force_scale.size() == m_size;
     for (size_t k = 0; k < u.size(); ++k) {
       const Eigen::VectorXd& prev = k == 0 ? m_previous : u[k - 1];
-      ef += smoothed_norm_sum(u[k], block, m_eps, grad ? &g1 : nullptr);
-      et += smoothed_norm_sum(u[k] - prev, block, m_eps, grad ? &g2 : nullptr);
+      if (scaled) {
+        ef +=
+            smoothed_norm_sum(u[k].cwiseProduct(m_force_scale), block, m_eps, grad ? &g1 : nullptr);
+        et += smoothed_norm_sum((u[k] - prev).cwiseProduct(m_force_scale), block, m_eps,
+                                grad ? &g2 : nullptr);
+        if (grad) {
+          g1 = g1.cwiseProduct(m_force_scale);
+          g2 = g2.cwiseProduct(m_force_scale);
+        }
+      } else {
+        ef += smoothed_norm_sum(u[k], block, m_eps, grad ? &g1 : nullptr);
+        et += smoothed_norm_sum(u[k] - prev, block, m_eps, grad ? &g2 : nullptr);
+      }
       if (grad) {
         (*grad)[k] +=
             (m_options.weights.force * g1 + m_options.weights.temporal * g2) / m_force_unit;
@@ -406,7 +430,9 @@ class WindowProblem {
   Eigen::VectorXd m_weights;
   Eigen::VectorXd m_previous;
   Eigen::VectorXd m_eps;
-  double m_force_unit = 1.0;  // the object's weight g0 * sum of block masses, newtons
+  Eigen::VectorXd m_arm;          // lever arm per block (body wrenches), metres
+  Eigen::VectorXd m_force_scale;  // body wrenches: 1 for forces, 1 / arm for torques
+  double m_force_unit = 1.0;      // the object's weight g0 * sum of block masses, newtons
   std::vector<Eigen::VectorXd> m_fixed;
   SimState m_state0;
   std::vector<int> m_active;

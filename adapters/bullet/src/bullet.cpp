@@ -582,7 +582,14 @@ ControlLayout BulletSimulator::Impl::layout() const {
     l.space = ControlSpace::body_wrench;
     l.num_blocks = static_cast<int>(pieces.size());
     l.block_mass.resize(l.num_blocks);
-    for (int b = 0; b < l.num_blocks; ++b) l.block_mass(b) = pieces[static_cast<size_t>(b)].mass;
+    l.block_arm.resize(l.num_blocks);
+    for (int b = 0; b < l.num_blocks; ++b) {
+      const Piece& pc = pieces[static_cast<size_t>(b)];
+      l.block_mass(b) = pc.mass;
+      // Radius of gyration about the centre of mass: sqrt(trace(I) / (2 m)) is the RMS
+      // distance of the mass from the centre.
+      l.block_arm(b) = std::sqrt(pc.inertia.sum() / (2.0 * pc.mass));
+    }
     l.vertex_block = vertex_piece;
   } else {
     l.space = ControlSpace::vertex_force;

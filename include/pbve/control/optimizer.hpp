@@ -17,7 +17,8 @@
 /// `active_rings` rings of vertex adjacency, plus blocks that carried a force in the previous
 /// frame; ActiveSet::all optimizes every free block. Internally each force component is
 /// expressed in units of its block's weight m_b * g0 (g0 = 9.80665 m/s^2; torques in units
-/// of m_b * g0 * torque_arm), which makes the problem well scaled for every solver.
+/// of m_b * g0 * arm_b, arm_b from ControlLayout::block_arm or torque_arm), which makes the
+/// problem well scaled for every solver.
 ///
 /// Gradients. The visibility term is differentiated either by central differences through
 /// Simulator::save()/restore() (any engine; 2 simulations per variable, parallel over
@@ -125,14 +126,17 @@ struct ControlOptions {
   /// which makes black-box engines practical, at the price of smoother (less sparse) forces.
   /// Ignored for body wrenches (already 6 numbers per body).
   int clusters = 0;
-  /// Penalize interior triangles (Mesh::interior) like unobserved ones: their texture never
-  /// comes from the footage.
-  bool penalize_interior = true;
+  /// Penalize interior triangles (Mesh::interior) like unobserved ones. Off by default:
+  /// interior faces are drawn in a uniform colour, and the pieces of a fracture must open to
+  /// show them; the violation metric does not count them either.
+  bool penalize_interior = false;
 
   /// Optional box bound on every control component, in units of the block's weight m_b g0
-  /// (torques: m_b g0 torque_arm); 0 = unbounded. A bound B limits |f_b| to sqrt(3) B m_b g0.
+  /// (torques: m_b g0 arm_b); 0 = unbounded. A bound B limits |f_b| to sqrt(3) B m_b g0.
   double force_bound = 0.0;
-  /// Lever arm (metres) giving torques of body_wrench blocks their scale m_b g0 torque_arm.
+  /// Lever arm (metres) of body_wrench blocks whose simulator gives none
+  /// (ControlLayout::block_arm): torques are scaled by m_b g0 torque_arm and count as the force
+  /// |tau| / torque_arm in EF and ET.
   double torque_arm = 0.1;
   /// Smoothing of the norms in EF and ET, in units of the block weight: eps_b = this * m_b g0.
   double force_smoothing = 1e-2;

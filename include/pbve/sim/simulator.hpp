@@ -31,8 +31,12 @@ enum class ControlSpace {
 /// k = 3 (force, newtons) or 6 (force in newtons, then torque in newton-metres), camera frame.
 struct ControlLayout {
   ControlSpace space = ControlSpace::vertex_force;
-  int num_blocks = 0;             ///< surface vertices (vertex_force) or bodies (body_wrench)
-  Eigen::VectorXd block_mass;     ///< kg: mass of the vertex / body each block acts on
+  int num_blocks = 0;          ///< surface vertices (vertex_force) or bodies (body_wrench)
+  Eigen::VectorXd block_mass;  ///< kg: mass of the vertex / body each block acts on
+  /// body_wrench only, optional: each body's lever arm in metres (e.g. its radius of gyration
+  /// about the centre of mass). The optimizer counts a torque tau as a force |tau| / arm and
+  /// scales it by m_b g0 arm. Empty: ControlOptions::torque_arm for every body.
+  Eigen::VectorXd block_arm;
   std::vector<int> vertex_block;  ///< per surface vertex: the block that moves it (-1: none)
 
   int block_size() const { return space == ControlSpace::vertex_force ? 3 : 6; }
