@@ -42,7 +42,7 @@ int run_synth(const std::vector<std::string>& argv) {
         "--image), object.obj, poses.txt, plate_true.png and a ready scene.yaml for 'pbve edit'.\n"
         "\n"
         "options:\n"
-        "  --shape S        board (default) | figurine | ball\n"
+        "  --shape S        board (default) | figurine | ball | statue (fractured, needs Bullet)\n"
         "  --motion M       swing (default) | wave | stop | bounce | still\n"
         "  --frames N       number of frames (default 90)\n"
         "  --fps F          frame rate (default 30)\n"

@@ -17,6 +17,7 @@
 #include "pbve/core/camera.hpp"
 #include "pbve/core/error.hpp"
 #include "pbve/core/footage.hpp"
+#include "pbve/core/fracture.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/core/pose.hpp"
 #include "pbve/render/plate.hpp"
@@ -266,6 +267,16 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   if (!findings.ok())
     report.warnings.push_back(scene.object.mesh.string() + ": " + findings.summary() +
                               " They are simulated as given: check the edited video there.");
+  if (scene.object.fracture_pieces > 0) {
+    FractureOptions fo;
+    fo.pieces = scene.object.fracture_pieces;
+    fo.seed = static_cast<std::uint64_t>(scene.object.fracture_seed);
+    try {
+      mesh = voronoi_fracture(mesh, fo);
+    } catch (const InputError& e) {
+      throw scene_error(scene, "object.fracture", scene.object.mesh.string() + ": " + e.message());
+    }
+  }
   const int original_vertices = mesh.num_vertices();
   if (scene.object.refine > 0) mesh = refine_mesh(mesh, scene.object.refine);
 

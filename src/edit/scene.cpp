@@ -229,13 +229,27 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
   require(r, root, "object", "");
   {
     const YAML::Node n = root["object"];
-    r.check_map(n, "object", {"mesh", "poses", "scale", "refine", "anchors"});
+    r.check_map(n, "object", {"mesh", "poses", "scale", "refine", "fracture", "anchors"});
     require(r, n, "mesh", "object");
     require(r, n, "poses", "object");
     s.object.mesh = r.path(n["mesh"], "object.mesh");
     s.object.poses = r.path(n["poses"], "object.poses");
     if (n["scale"]) s.object.scale = r.positive(n["scale"], "object.scale");
     if (n["refine"]) s.object.refine = r.positive(n["refine"], "object.refine");
+    if (n["fracture"]) {
+      const YAML::Node f = n["fracture"];
+      r.check_map(f, "object.fracture", {"pieces", "seed"});
+      require(r, f, "pieces", "object.fracture");
+      s.object.fracture_pieces = r.integer(f["pieces"], "object.fracture.pieces");
+      if (s.object.fracture_pieces < 2 || s.object.fracture_pieces > 1000)
+        r.fail(f["pieces"], "object.fracture.pieces",
+               "must be between 2 and 1000, found " + f["pieces"].Scalar());
+      if (f["seed"]) {
+        s.object.fracture_seed = r.integer(f["seed"], "object.fracture.seed");
+        if (s.object.fracture_seed < 0)
+          r.fail(f["seed"], "object.fracture.seed", "must not be negative");
+      }
+    }
     if (n["anchors"]) {
       const YAML::Node a = n["anchors"];
       r.check_map(a, "object.anchors", {"vertices", "box"});
@@ -422,6 +436,10 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "poses" << YAML::Value << s.object.poses.string();
   e << YAML::Key << "scale" << YAML::Value << s.object.scale;
   if (s.object.refine > 0) e << YAML::Key << "refine" << YAML::Value << s.object.refine;
+  if (s.object.fracture_pieces > 0)
+    e << YAML::Key << "fracture" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key
+      << "pieces" << YAML::Value << s.object.fracture_pieces << YAML::Key << "seed" << YAML::Value
+      << s.object.fracture_seed << YAML::EndMap;
   e << YAML::Key << "anchors" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "vertices" << YAML::Value << YAML::Flow << s.object.anchors.vertices;
   if (s.object.anchors.box_min) {

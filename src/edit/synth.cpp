@@ -274,8 +274,10 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     return t < 0.5 ? 0.5 - 0.5 * std::cos(2 * pi * t) : 1.0;
   };  // 0 -> 1 over 0.5 s
   std::ostringstream scene;
-  std::string material, anchors, extra_sim, extra_obj;
+  std::string engine = "mass_spring", material, anchors, extra_sim, extra_obj, extra_control;
+  std::string substeps = "3";
   Eigen::Vector3d base;
+  Eigen::Matrix3d tilt = Eigen::Matrix3d::Identity();  // the object's rest orientation
   if (o.shape == "board") {
     r.mesh = make_box_mesh(0.40, 0.30, 0.01);
     base = {0.0, -0.13, 1.3};
@@ -297,8 +299,26 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     material = "elastic";
     anchors = "{vertices: []}";
     extra_sim = "  ground: {point: [0, 0.17, 0], normal: [0, -1, 0], friction: 0.5}\n";
+  } else if (o.shape == "statue") {
+    // A stone block caught falling: 12 cm above the ground, leaning and turned, so its pieces
+    // land, tumble and scatter (the paper's shattering statue, a Bullet rigid-body scene).
+    r.mesh = make_box_mesh(0.14, 0.30, 0.10);
+    base = {0.0, -0.14, 1.2};
+    tilt = (Eigen::AngleAxisd(25.0 * pi / 180.0, Eigen::Vector3d::UnitY()) *
+            Eigen::AngleAxisd(12.0 * pi / 180.0, Eigen::Vector3d::UnitZ()))
+               .toRotationMatrix();
+    engine = "bullet";
+    material = "rigid";
+    substeps = "10";
+    anchors = "{vertices: []}";
+    extra_obj = "  fracture: {pieces: 8, seed: 1}\n";
+    extra_sim = "  ground: {point: [0, 0.30, 0], normal: [0, -1, 0], friction: 0.6}\n";
+    // Central differences through colliding pieces are rough: unbounded, a line search can
+    // fling a piece away. Each component stays within twice the piece's weight.
+    extra_control = "  force_bound: 2\n";
   } else {
-    throw InputError("unknown shape '" + o.shape + "' (board, figurine or ball)", {}, 0, "--shape");
+    throw InputError("unknown shape '" + o.shape + "' (board, figurine, ball or statue)", {}, 0,
+                     "--shape");
   }
   for (int i = 0; i < n; ++i) {
     const double t = i * dt;
@@ -336,7 +356,7 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
                        0, "--motion");
     }
     Pose pose;
-    pose.rotation = R;
+    pose.rotation = R * tilt;
     pose.translation = p;
     r.track.poses.push_back(pose);
   }
@@ -351,11 +371,12 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
         << ", cy: " << r.camera.cy << "}\n";
   scene << "object:\n  mesh: object.obj\n  poses: poses.txt\n  scale: 1.01\n"
         << extra_obj << "  anchors: " << anchors << "\n";
-  scene << "simulation:\n  engine: mass_spring\n  material: " << material
-        << "\n  gravity: [0, 9.81, 0]\n  substeps: 3\n"
+  scene << "simulation:\n  engine: " << engine << "\n  material: " << material
+        << "\n  gravity: [0, 9.81, 0]\n  substeps: " << substeps << "\n"
         << extra_sim;
   scene << "control:\n  enabled: true\n  weights: {visibility: 1.0, force: 0.03, temporal: 0.03}\n"
-           "  margin: 0.01\n  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n";
+           "  margin: 0.01\n  window: 1\n  solver: lbfgs\n  max_iterations: 20\n  gradient: auto\n"
+        << extra_control;
   scene << "output: {video: edited.mp4, report: report.json}\n";
   r.scene_yaml = scene.str();
   return r;

@@ -172,6 +172,20 @@ TEST_F(BadInput, WrongTypeNamesTheKey) {
                         "expected a number, found 'many'"});
 }
 
+TEST_F(BadInput, FractureWithOnePieceNamesTheKey) {
+  replace(scene, "  scale: 1.01", "  scale: 1.01\n  fracture: {pieces: 1}");
+  expect_error(edit(), {location("fracture:") + "key 'object.fracture.pieces'",
+                        "must be between 2 and 1000, found 1"});
+}
+
+TEST_F(BadInput, FractureOfAConcaveMeshNamesTheVertex) {
+  replace(scene, "  scale: 1.01", "  scale: 1.01\n  fracture: {pieces: 4}");
+  // The board's last corner pushed into its middle: no longer convex.
+  replace(dir / "object.obj", "v 0.2 0.3 0.005", "v 0 0.15 0");
+  expect_error(edit(), {location("fracture:") + "key 'object.fracture'",
+                        "fracture needs a convex mesh: vertex", "in front of the plane of a face"});
+}
+
 // ---- the mesh ----------------------------------------------------------------------------------
 
 TEST_F(BadInput, MissingMesh) {

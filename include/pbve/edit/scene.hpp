@@ -37,6 +37,10 @@ struct SceneObject {
   std::filesystem::path poses;  ///< pose file (a single pose for a single picture)
   double scale = 1.01;          ///< enlargement covering silhouette errors (paper 4.1)
   double refine = 0.0;          ///< split edges longer than this (mesh units); 0 = off
+  /// `fracture: {pieces: N, seed: S}`: cut the (convex) mesh into N Voronoi pieces before
+  /// refining (pbve::voronoi_fracture); 0 = off.
+  int fracture_pieces = 0;
+  int fracture_seed = 1;
   SceneAnchors anchors;
 };
 

@@ -46,7 +46,7 @@ cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
 
 /// What `pbve synth` makes.
 struct SynthOptions {
-  std::string shape = "board";   ///< board | figurine | ball
+  std::string shape = "board";   ///< board | figurine | ball | statue (Bullet, fractured)
   std::string motion = "swing";  ///< swing | wave | stop | bounce | still
   int frames = 90;
   double fps = 30.0;
