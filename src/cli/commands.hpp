@@ -34,5 +34,6 @@ int run_edit(const std::vector<std::string>& args);
 int run_synth(const std::vector<std::string>& args);
 int run_plot(const std::vector<std::string>& args);
 int run_bench(const std::vector<std::string>& args);
+int run_track(const std::vector<std::string>& args);
 
 }  // namespace pbve::cli

@@ -4,6 +4,7 @@
 //   pbve synth [--shape S] [--motion M] [--frames N] [--size WxH] [--image] OUT_DIR
 //   pbve plot REPORT.json [REPORT2.json] [-o PLOT.png]
 //   pbve bench [-o BENCH.json] [--vertices LIST] [--frames A:B] [--modes LIST]
+//   pbve track VIDEO MESH --camera fx,fy,cx,cy --initial-pose P.txt -o POSES.txt
 
 #include <cstdio>
 #include <cstring>
@@ -28,6 +29,7 @@ const char* kUsage =
     "  synth OUT_DIR     make a synthetic input clip, its pose file and a scene file\n"
     "  plot REPORT.json  draw violation and force plots of one or two reports into a PNG\n"
     "  bench             time example 1 at several mesh resolutions, with and without control\n"
+    "  track VIDEO MESH  estimate the object's pose in every frame (writes a pose file)\n"
     "\n"
     "Run 'pbve <command> --help' for the options of a command.\n";
 
@@ -50,6 +52,7 @@ int main(int argc, char** argv) {
     if (cmd == "synth") return pbve::cli::run_synth(args);
     if (cmd == "plot") return pbve::cli::run_plot(args);
     if (cmd == "bench") return pbve::cli::run_bench(args);
+    if (cmd == "track") return pbve::cli::run_track(args);
     std::fprintf(stderr, "pbve: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
     return 2;
   } catch (const pbve::cli::UsageError& e) {

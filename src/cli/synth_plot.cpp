@@ -43,13 +43,14 @@ int run_synth(const std::vector<std::string>& argv) {
         "\n"
         "options:\n"
         "  --shape S        board (default) | figurine | ball | statue (fractured, needs Bullet)\n"
-        "  --motion M       swing (default) | wave | stop | bounce | still\n"
+        "  --motion M       swing (default) | wave | stop | bounce | orbit | still\n"
         "  --frames N       number of frames (default 90)\n"
         "  --fps F          frame rate (default 30)\n"
         "  --size WxH       image size (default 640x480)\n"
         "  --supersample K  antialiasing samples per pixel along each axis (default 3)\n"
         "  --background P   background image (default: a generated one)\n"
-        "  --image          a single picture (frame 0) instead of a video");
+        "  --image          a single picture (frame 0) instead of a video\n"
+        "  --occluder       a hand passes in front of the object mid-clip (tracking tests)");
     return 0;
   }
   SynthOptions o;
@@ -73,6 +74,7 @@ int run_synth(const std::vector<std::string>& argv) {
   o.height = parse_int(size.substr(x + 1), "--size");
   o.background = args.value("--background");
   o.single_image = args.flag("--image");
+  o.occluder = args.flag("--occluder");
   if (o.single_image) {
     o.video_name = "picture.png";
     if (o.motion == "swing") o.motion = "still";

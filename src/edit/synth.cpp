@@ -351,9 +351,21 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
       p.y() += -0.25 + (0.17 + 0.25 - 0.08) - (v0 * tb - 0.5 * g * tb * tb);
       p.x() += -0.25 + 0.25 * t;
       R = Eigen::AngleAxisd(0.25 * t / 0.08, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    } else if (o.motion == "orbit") {
+      // Moved around the frame while turning about two axes (a handheld object shown around).
+      const double s = ramp(t);
+      p.x() += 0.08 * s * std::sin(2 * pi * 0.25 * t);
+      p.y() += 0.04 * s * std::sin(2 * pi * 0.4 * t);
+      p.z() += 0.10 * s * std::sin(2 * pi * 0.15 * t);
+      const double yaw = (40.0 * pi / 180.0) * s * std::sin(2 * pi * 0.3 * t);
+      const double pitch = (15.0 * pi / 180.0) * s * std::sin(2 * pi * 0.45 * t);
+      R = (Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()) *
+           Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitX()))
+              .toRotationMatrix();
     } else if (o.motion != "still") {
-      throw InputError("unknown motion '" + o.motion + "' (swing, wave, stop, bounce or still)", {},
-                       0, "--motion");
+      throw InputError(
+          "unknown motion '" + o.motion + "' (swing, wave, stop, bounce, orbit or still)", {}, 0,
+          "--motion");
     }
     Pose pose;
     pose.rotation = R * tilt;
@@ -381,6 +393,47 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
   r.scene_yaml = scene.str();
   return r;
 }
+
+namespace {
+
+// A hand (palm, four fingers, thumb and forearm, skin coloured) sweeping from right to left
+// across the object's projection as `phase` goes from 0 to 1, over it between about 0.35 and
+// 0.65 and covering up to about a third of it.
+void draw_occluder(cv::Mat& img, const Mesh& mesh, const Pose& pose, const Camera& camera,
+                   double phase) {
+  double x0 = 1e9, x1 = -1e9, y0 = 1e9, y1 = -1e9;
+  for (Eigen::Index i = 0; i < mesh.vertices.rows(); ++i) {
+    const Eigen::Vector2d q = camera.project(pose.apply(Eigen::Vector3d(mesh.vertices.row(i))));
+    x0 = std::min(x0, q.x());
+    x1 = std::max(x1, q.x());
+    y0 = std::min(y0, q.y());
+    y1 = std::max(y1, q.y());
+  }
+  const double w = x1 - x0, h = y1 - y0;
+  const double palm = 0.22 * std::max(w, h);
+  const double cx = x1 + palm - (w + 2 * palm) * phase, cy = 0.5 * (y0 + y1) + 0.15 * h;
+  const cv::Scalar skin(120, 160, 215), shade(100, 135, 190);
+  auto pt = [](double x, double y) {
+    return cv::Point(static_cast<int>(std::lround(x * 16)), static_cast<int>(std::lround(y * 16)));
+  };
+  const int s = static_cast<int>(std::lround(palm * 16));
+  // Forearm towards the lower right corner, then palm, fingers and thumb.
+  const std::vector<cv::Point> arm = {pt(cx, cy - 0.5 * palm), pt(cx + 3 * palm, cy + 2 * palm),
+                                      pt(cx + 3 * palm, cy + 4 * palm), pt(cx, cy + 0.6 * palm)};
+  cv::fillConvexPoly(img, arm, shade, cv::LINE_AA, 4);
+  cv::ellipse(img, pt(cx, cy), cv::Size(s, static_cast<int>(s * 0.8)), 0, 0, 360, skin, cv::FILLED,
+              cv::LINE_AA, 4);
+  for (int f = 0; f < 4; ++f) {
+    const double fx = cx - 0.7 * palm + f * 0.45 * palm, fy = cy - 1.25 * palm;
+    cv::ellipse(img, pt(fx, fy), cv::Size(static_cast<int>(s * 0.2), static_cast<int>(s * 0.6)),
+                -10 + 7 * f, 0, 360, skin, cv::FILLED, cv::LINE_AA, 4);
+  }
+  cv::ellipse(img, pt(cx - 1.1 * palm, cy + 0.1 * palm),
+              cv::Size(static_cast<int>(s * 0.55), static_cast<int>(s * 0.22)), 30, 0, 360, skin,
+              cv::FILLED, cv::LINE_AA, 4);
+}
+
+}  // namespace
 
 SynthOutput synthesize(const SynthOptions& o, const fs::path& out_dir) {
   SynthRecipe r = synth_recipe(o);
@@ -419,8 +472,13 @@ SynthOutput synthesize(const SynthOptions& o, const fs::path& out_dir) {
     });
   } else {
     VideoWriter writer(out.video, o.fps, size);
-    for (const auto& pose : r.track.poses)
-      writer.write(render_object(r.mesh, *pose, r.camera, texture, background, o.supersample));
+    const int n = r.track.size();
+    for (int i = 0; i < n; ++i) {
+      const Pose& pose = *r.track.poses[static_cast<size_t>(i)];
+      cv::Mat img = render_object(r.mesh, pose, r.camera, texture, background, o.supersample);
+      if (o.occluder) draw_occluder(img, r.mesh, pose, r.camera, n > 1 ? i / (n - 1.0) : 0.5);
+      writer.write(img);
+    }
     writer.close();
   }
   write_atomically(out.scene, [&](const fs::path& tmp) {

@@ -47,7 +47,7 @@ cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
 /// What `pbve synth` makes.
 struct SynthOptions {
   std::string shape = "board";   ///< board | figurine | ball | statue (Bullet, fractured)
-  std::string motion = "swing";  ///< swing | wave | stop | bounce | still
+  std::string motion = "swing";  ///< swing | wave | stop | bounce | orbit | still
   int frames = 90;
   double fps = 30.0;
   int width = 640;
@@ -55,6 +55,9 @@ struct SynthOptions {
   int supersample = 3;
   std::filesystem::path background;  ///< background image (resized), or empty for generated
   bool single_image = false;         ///< write one picture (frame 0) instead of a video
+  /// A hand-like occluder passes in front of the object mid-clip, covering up to about a third
+  /// of it (for tracking tests). It is not in the scene: edits would show it as texture.
+  bool occluder = false;
   std::string video_name = "clip.mp4";
 };
 

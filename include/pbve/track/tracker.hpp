@@ -1,0 +1,121 @@
+#pragma once
+/// @file
+/// Model-based pose tracking (the preprocessing the paper assumes): the pose of a known mesh
+/// in every frame of footage from a static camera, given its pose in the first frame.
+///
+/// The tracker follows image corners on the object and knows each one's 3-D point on the mesh
+/// (a ray cast through the pose that found it), so every frame is a perspective-n-point problem
+/// solved robustly (RANSAC, then Levenberg-Marquardt on the inliers):
+/// - corners of a keyframe (an earlier frame with its pose) are followed into the current frame
+///   by pyramidal Lucas-Kanade, started at their projections under the predicted pose
+///   (constant velocity) and kept only when tracking back lands within a pixel of where they
+///   started; keyframes limit drift to the keyframe changes;
+/// - corners of the previous frame (found anew in every frame) are followed the same way, but
+///   only when fewer than 3 x min_inliers keyframe corners survive: they are re-detected on an
+///   occluder too, whereas keyframe corners covered by one fail the backward check;
+/// - corners stay half a window inside the silhouette, and only where the window sees one
+///   surface (no occluding contour of the object itself across it);
+/// - a new keyframe is taken when the keyframe's corners run low or the object turned more
+///   than `keyframe_angle_deg` since it; a frame with too few inliers is `lost` and the
+///   keyframe is kept, so tracking resumes when the object reappears near its last pose.
+
+#include <functional>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "pbve/core/camera.hpp"
+#include "pbve/core/footage.hpp"
+#include "pbve/core/mesh.hpp"
+#include "pbve/core/pose.hpp"
+
+namespace pbve {
+
+/// Tracker settings (pixels refer to the footage's resolution).
+struct TrackOptions {
+  int max_corners = 300;           ///< corners detected per keyframe / frame
+  double corner_quality = 0.01;    ///< Shi-Tomasi quality level, relative to the best corner
+  double corner_distance = 7.0;    ///< minimum distance between corners, pixels
+  int window = 15;                 ///< Lucas-Kanade window, pixels (corners stay half a window
+                                   ///< inside the silhouette)
+  int pyramid_levels = 3;          ///< Lucas-Kanade pyramid levels above the full image
+  double back_track_px = 1.0;      ///< forward-backward check tolerance, pixels
+  double ransac_px = 2.0;          ///< RANSAC inlier reprojection threshold, pixels
+  int min_inliers = 12;            ///< fewer inliers: the frame is lost
+  double keyframe_angle_deg = 20;  ///< rotation since the keyframe that triggers a new one
+  double keyframe_keep = 0.5;      ///< new keyframe when fewer than this fraction survive
+};
+
+/// What happened in one frame.
+struct TrackFrameInfo {
+  bool lost = false;          ///< no pose could be trusted
+  int correspondences = 0;    ///< 2-D/3-D pairs offered to PnP
+  int inliers = 0;            ///< RANSAC inliers
+  double rms_px = 0.0;        ///< RMS reprojection error of the inliers, pixels
+  bool new_keyframe = false;  ///< this frame became the keyframe
+  bool in_view = true;        ///< the predicted object overlaps the image
+};
+
+/// Frame-by-frame pose tracker. Not thread-safe; one instance per clip.
+class PoseTracker {
+ public:
+  /// `mesh` in its own coordinates (same length unit as the poses), `camera` the footage's
+  /// intrinsics (width and height included). Throws InputError for an empty mesh or an invalid
+  /// camera.
+  PoseTracker(const Mesh& mesh, const Camera& camera, TrackOptions options = {});
+  ~PoseTracker();
+  PoseTracker(const PoseTracker&) = delete;
+  PoseTracker& operator=(const PoseTracker&) = delete;
+
+  /// Starts on `frame` (BGR or grey, the camera's size) where the object has `pose`: it becomes
+  /// the first keyframe. Throws InputError when the object shows no trackable corner there.
+  void start(const cv::Mat& frame, const Pose& pose);
+  /// The pose in the next frame, or std::nullopt when lost. start() first.
+  std::optional<Pose> track(const cv::Mat& frame, TrackFrameInfo* info = nullptr);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> m_impl;
+};
+
+/// Poses of a whole clip.
+struct TrackResult {
+  PoseTrack track;                     ///< one per frame, std::nullopt where lost
+  std::vector<TrackFrameInfo> frames;  ///< one per frame (frame 0: the initial pose)
+  double track_ms_per_frame = 0.0;     ///< mean tracking time per frame, without decoding
+  /// First frame of a final run of lost frames in which the object was predicted outside the
+  /// image (it left the view for good); -1 when it did not.
+  int left_view_at = -1;
+};
+
+/// Called after every frame with its index, the frame, its pose (or nullopt) and its info.
+using TrackFrameCallback =
+    std::function<void(int, const cv::Mat&, const std::optional<Pose>&, const TrackFrameInfo&)>;
+
+/// Tracks `mesh` through every frame of `footage` from `initial`, the pose in frame 0.
+TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& camera,
+                          const Pose& initial, const TrackOptions& options = {},
+                          const TrackFrameCallback& on_frame = {});
+
+/// The pose that maps `mesh_points` (mesh coordinates) onto `pixels` with `camera`
+/// (perspective-n-point, at least 4 pairs, iterative refinement). Throws InputError for fewer
+/// than 4 pairs, mismatched sizes, or a solution with RMS reprojection error above `max_rms_px`
+/// (the message gives it) or with the object behind the camera.
+Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
+                               const std::vector<Eigen::Vector2d>& pixels, const Camera& camera,
+                               double max_rms_px = 5.0);
+
+/// Draws the mesh's silhouette and crease edges (dihedral angle above `crease_deg`) of the
+/// faces turned towards the camera, projected with `pose`, on `image` (BGR, the camera's size).
+void draw_mesh_edges(cv::Mat& image, const Mesh& mesh, const Camera& camera, const Pose& pose,
+                     const cv::Scalar& color = cv::Scalar(0, 255, 0), double crease_deg = 30.0);
+
+/// Reprojection error between two poses of `mesh` in one frame: the mean over vertices of the
+/// pixel distance between their projections (vertices behind the camera are skipped;
+/// +infinity when none is in front of it).
+double reprojection_error_px(const Mesh& mesh, const Camera& camera, const Pose& a, const Pose& b);
+
+}  // namespace pbve
