@@ -14,6 +14,7 @@
 
 #include <Eigen/Geometry>
 
+#include "mesh_arrays.hpp"
 #include "pbve/core/error.hpp"
 
 namespace pbve {
@@ -198,13 +199,9 @@ Mesh voronoi_fracture(const Mesh& convex, const FractureOptions& options) {
       }
     }
   }
-  out.vertices =
-      Eigen::Map<const Vertices>(xyz.data(), static_cast<Eigen::Index>(xyz.size() / 3), 3);
-  out.triangles =
-      Eigen::Map<const Triangles>(tri.data(), static_cast<Eigen::Index>(tri.size() / 3), 3);
-  out.triangle_part = std::move(part);
-  out.interior = std::move(interior);
-  return out;
+  Mesh geometry = detail::mesh_from_arrays(xyz, tri, std::move(part), std::move(interior));
+  geometry.part_names = std::move(out.part_names);
+  return geometry;
 }
 
 }  // namespace pbve

@@ -13,6 +13,7 @@
 
 #include <Eigen/Geometry>
 
+#include "mesh_arrays.hpp"
 #include "pbve/core/error.hpp"
 
 namespace pbve {
@@ -339,16 +340,18 @@ Mesh refine_mesh(const Mesh& mesh, double max_edge_length) {
     interior.swap(new_interior);
   }
 
-  Mesh out;
-  out.vertices =
-      Eigen::Map<const Vertices>(xyz.data(), static_cast<Eigen::Index>(xyz.size() / 3), 3);
-  out.triangles =
-      Eigen::Map<const Triangles>(tri.data(), static_cast<Eigen::Index>(tri.size() / 3), 3);
-  out.triangle_part = std::move(part);
-  out.interior = std::move(interior);
+  Mesh out = detail::mesh_from_arrays(xyz, tri, std::move(part), std::move(interior));
   out.part_names = mesh.part_names;
   if (out.part_names.empty() && out.num_triangles() > 0) out.part_names.push_back("default");
   return out;
+}
+
+double enclosed_volume(const Vertices& vertices, const Triangles& triangles) {
+  double v = 0.0;
+  for (Eigen::Index f = 0; f < triangles.rows(); ++f)
+    v += row(vertices, triangles(f, 0))
+             .dot(row(vertices, triangles(f, 1)).cross(row(vertices, triangles(f, 2))));
+  return v / 6.0;
 }
 
 std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const Triangles& t,

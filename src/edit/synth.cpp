@@ -33,13 +33,7 @@ Mesh finish(Vertices v, Triangles f) {
   m.part_names = {"object"};
   m.interior.assign(static_cast<size_t>(m.num_triangles()), 0);
   // Orient outwards: positive signed volume.
-  double vol = 0.0;
-  for (int t = 0; t < m.num_triangles(); ++t) {
-    const Eigen::Vector3d a = m.vertices.row(m.triangles(t, 0)),
-                          b = m.vertices.row(m.triangles(t, 1)),
-                          c = m.vertices.row(m.triangles(t, 2));
-    vol += a.dot(b.cross(c)) / 6.0;
-  }
+  const double vol = enclosed_volume(m.vertices, m.triangles);
   if (vol < 0)
     for (int t = 0; t < m.num_triangles(); ++t) std::swap(m.triangles(t, 1), m.triangles(t, 2));
   return m;

@@ -83,6 +83,9 @@ Eigen::VectorXd triangle_areas(const Vertices& vertices, const Triangles& triang
 Vertices triangle_centroids(const Vertices& vertices, const Triangles& triangles);
 /// For each vertex, the sorted list of vertices sharing an edge with it.
 std::vector<std::vector<int>> vertex_adjacency(const Triangles& triangles, int num_vertices);
+/// Signed volume enclosed by a closed surface: positive when its triangles are counter-clockwise
+/// seen from outside (the divergence theorem; meaningless for an open surface).
+double enclosed_volume(const Vertices& vertices, const Triangles& triangles);
 /// Longest edge length of the mesh.
 double max_edge_length(const Mesh& mesh);
 
