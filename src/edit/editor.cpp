@@ -130,6 +130,8 @@ ControlOptions control_options(const SceneControl& c) {
   o.barrier.margin = c.margin;
   o.force_bound = c.force_bound;
   o.clusters = c.clusters;
+  o.linearized = c.linearized;
+  o.max_linearizations = c.max_linearizations;
   return o;
 }
 
@@ -439,6 +441,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
         window[k].dt = dt;
         window[k].anchor_targets = pose[static_cast<size_t>(tk)].apply(anchor_rest);
         window[k].unobserved = input_visibility(tk).keep_hidden;
+        window[k].observed = input_visibility(tk).observed;
       }
       const SimState before = sim->save();
       ControlFrameResult r;

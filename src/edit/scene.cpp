@@ -320,9 +320,10 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
 
   if (root["control"]) {
     const YAML::Node n = root["control"];
-    r.check_map(n, "control",
-                {"enabled", "weights", "window", "solver", "gradient", "active_set",
-                 "max_iterations", "warm_start", "margin", "force_bound", "clusters"});
+    r.check_map(
+        n, "control",
+        {"enabled", "weights", "window", "solver", "gradient", "active_set", "max_iterations",
+         "warm_start", "margin", "force_bound", "clusters", "linearized", "max_linearizations"});
     SceneControl& c = s.control;
     for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
     if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
@@ -363,6 +364,12 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     if (n["clusters"]) {
       c.clusters = r.integer(n["clusters"], "control.clusters");
       if (c.clusters < 0) r.fail(n["clusters"], "control.clusters", "must not be negative");
+    }
+    if (n["linearized"]) c.linearized = r.boolean(n["linearized"], "control.linearized");
+    if (n["max_linearizations"]) {
+      c.max_linearizations = r.integer(n["max_linearizations"], "control.max_linearizations");
+      if (c.max_linearizations < 1)
+        r.fail(n["max_linearizations"], "control.max_linearizations", "must be at least 1");
     }
     if (n["force_bound"]) {
       c.force_bound = r.number(n["force_bound"], "control.force_bound");
@@ -489,6 +496,8 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "margin" << YAML::Value << c.margin;
   e << YAML::Key << "force_bound" << YAML::Value << c.force_bound;
   e << YAML::Key << "clusters" << YAML::Value << c.clusters;
+  e << YAML::Key << "linearized" << YAML::Value << c.linearized;
+  e << YAML::Key << "max_linearizations" << YAML::Value << c.max_linearizations;
   e << YAML::EndMap;
   e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "video" << YAML::Value << s.output.video.string();

@@ -89,6 +89,10 @@ struct SceneControl {
   /// Reduced control space: 0 = one force per active vertex; K > 0 = one acceleration per
   /// spatial cluster of at most K clusters (ControlOptions::clusters).
   int clusters = 0;
+  /// Search on the linearized dynamics when the engine offers them (ControlOptions::linearized).
+  bool linearized = true;
+  /// Outer iterations of the linearized search (ControlOptions::max_linearizations).
+  int max_linearizations = 4;
   /// Key -> line of every key given under `control:` (for messages about combinations).
   std::map<std::string, int> given;
 };
