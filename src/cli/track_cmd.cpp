@@ -103,7 +103,7 @@ int run_track(const std::vector<std::string>& argv) {
     std::puts(
         "usage: pbve track VIDEO MESH --camera fx,fy,cx,cy (--initial-pose POSES.txt |\n"
         "                  --correspondences PAIRS.txt) -o POSES.txt [--overlay OVERLAY.mp4]\n"
-        "                  [--truth TRUE_POSES.txt] [--quiet]\n"
+        "                  [--truth TRUE_POSES.txt] [--log LOG.csv] [--quiet]\n"
         "\n"
         "Estimates the pose of the object (MESH, OBJ or PLY) in every frame of VIDEO from a\n"
         "static camera, starting from its pose in the first frame, and writes a pose file (one\n"
@@ -119,6 +119,9 @@ int run_track(const std::vector<std::string>& argv) {
         "                            and crease edges (green; red text where lost)\n"
         "  --truth FILE              true poses (e.g. from pbve synth): prints the reprojection\n"
         "                            error per frame (mean over vertices): median and maximum\n"
+        "  --log FILE                per-frame table (CSV): lost, corners, inliers, RMS, "
+        "silhouette\n"
+        "                            agreement, keyframe, re-detection, error against --truth\n"
         "  --quiet                   no progress output\n"
         "\n"
         "exit status: 0 on success, 1 on error or when the object left the view for good (the\n"
@@ -131,6 +134,7 @@ int run_track(const std::vector<std::string>& argv) {
   const std::string output = args.value("--output", "-o");
   const std::string overlay = args.value("--overlay");
   const std::string truth = args.value("--truth");
+  const std::string log = args.value("--log");
   const bool quiet = args.flag("--quiet");
   const auto pos = args.positional();
   if (pos.size() != 2) throw UsageError("expected VIDEO and MESH");
@@ -142,7 +146,8 @@ int run_track(const std::vector<std::string>& argv) {
         "(exactly one)");
   for (const auto& in : {pos[0], pos[1], initial, pairs, truth})
     if (!in.empty() && (std::filesystem::path(in) == output ||
-                        (!overlay.empty() && std::filesystem::path(in) == overlay)))
+                        (!overlay.empty() && std::filesystem::path(in) == overlay) ||
+                        (!log.empty() && std::filesystem::path(in) == log)))
       throw UsageError("an output path equals the input " + in);
 
   Footage footage = Footage::open_video(pos[0]);
@@ -173,6 +178,8 @@ int run_track(const std::vector<std::string>& argv) {
   const bool tty = ::isatty(STDERR_FILENO) != 0;
   const int n = footage.frame_count();
   std::vector<double> errors;
+  std::ostringstream table;
+  table << "frame,lost,correspondences,inliers,rms_px,agreement,keyframe,redetected,error_px\n";
   TrackFrameCallback on_frame = [&](int t, const cv::Mat& frame, const std::optional<Pose>& pose,
                                     const TrackFrameInfo& info) {
     if (writer) {
@@ -183,10 +190,18 @@ int run_track(const std::vector<std::string>& argv) {
                     cv::Scalar(0, 0, 255), 2);
       writer->write(out);
     }
-    if (t < true_track.size() && true_track.poses[static_cast<size_t>(t)])
+    const bool have_truth = t < true_track.size() && true_track.poses[static_cast<size_t>(t)];
+    if (have_truth)
       errors.push_back(pose ? reprojection_error_px(mesh, camera, *pose,
                                                     *true_track.poses[static_cast<size_t>(t)])
                             : std::numeric_limits<double>::infinity());
+    char row[256];
+    std::snprintf(row, sizeof row, "%d,%d,%d,%d,%.3f,%.3f,%d,%d,", t, info.lost ? 1 : 0,
+                  info.correspondences, info.inliers, info.rms_px, t == 0 ? 1.0 : info.agreement,
+                  info.new_keyframe ? 1 : 0, info.relocalized ? 1 : 0);
+    table << row;
+    if (have_truth) table << (pose ? std::to_string(errors.back()) : std::string("inf"));
+    table << "\n";
     if (!quiet) {
       if (tty)
         std::fprintf(stderr, "\rframe %d/%d  %s  inliers %d   ", t + 1, n,
@@ -199,6 +214,12 @@ int run_track(const std::vector<std::string>& argv) {
   const TrackResult r = track_footage(footage, mesh, camera, start, TrackOptions{}, on_frame);
   if (!quiet && tty) std::fputc('\n', stderr);
   save_pose_file(r.track, output);
+  if (!log.empty())
+    write_atomically(log, [&](const std::filesystem::path& tmp) {
+      std::ofstream f(tmp);
+      f << table.str();
+      if (!f) throw InputError("cannot write the log", log);
+    });
   if (writer) writer->close();
 
   std::printf("poses:   %s (%d frames, %d lost)\n", output.c_str(), r.track.size(),

@@ -47,6 +47,32 @@ struct TrackOptions {
   int min_inliers = 12;            ///< fewer inliers: the frame is lost
   double keyframe_angle_deg = 20;  ///< rotation since the keyframe that triggers a new one
   double keyframe_keep = 0.5;      ///< new keyframe when fewer than this fraction survive
+  /// Follow keyframe corners from the keyframe's view warped to the predicted pose through the
+  /// mesh (else from the keyframe image itself).
+  bool warp_keyframe = true;
+
+  // Silhouette (region) term.
+  bool region = true;  ///< refine every pose with the silhouette term (else corners only)
+  /// Pixels per correspondence-line segment, coarse to fine; each scale searches the contour
+  /// within 5 segments either way.
+  std::vector<int> region_scales = {4, 2, 1};
+  int region_iterations = 2;        ///< Gauss-Newton iterations per scale
+  int contour_points = 200;         ///< at most this many correspondence lines
+  double contour_spacing_px = 3.0;  ///< at least this far apart along the contour
+  double region_weight = 1.0;       ///< of a line (inverse variance, pixels^-2) vs. a corner
+  double feature_sigma_px = 1.0;    ///< corner reprojection noise, pixels
+  int colour_band_px = 15;          ///< colour statistics from this far either side of the contour
+  double colour_rate = 0.1;         ///< weight of a frame's colours in the running statistics
+  /// A line whose pixels inside the contour look less like the object than this (mean
+  /// foreground probability) is covered by something else and left out.
+  double occlusion_threshold = 0.5;
+  double colour_update_threshold = 0.65;  ///< object colours only from lines above this
+  double colour_update_agreement = 0.5;   ///< statistics updated only at this agreement or more
+  /// The frame is lost below this silhouette agreement, or below region_only_agreement when
+  /// the corners give no pose.
+  double lost_agreement = 0.2;
+  double region_only_agreement = 0.5;
+  bool redetect = true;  ///< after a loss, search the whole frame for keyframe descriptors (ORB)
 };
 
 /// What happened in one frame.
@@ -57,6 +83,11 @@ struct TrackFrameInfo {
   double rms_px = 0.0;        ///< RMS reprojection error of the inliers, pixels
   bool new_keyframe = false;  ///< this frame became the keyframe
   bool in_view = true;        ///< the predicted object overlaps the image
+  /// Silhouette agreement: the fraction of the contour's correspondence lines (in the image)
+  /// whose colours show the object inside and the background outside within 2 pixels of the
+  /// projected contour (1 without the region term).
+  double agreement = 0.0;
+  bool relocalized = false;  ///< found again by re-detection after a loss
 };
 
 /// Frame-by-frame pose tracker. Not thread-safe; one instance per clip.
