@@ -47,54 +47,6 @@ Camera parse_camera(const std::string& spec) {
   return c;
 }
 
-// Correspondence file: one pair per line, `VERTEX u v` (a mesh vertex index and its pixel) or
-// `x y z u v` (a point in mesh coordinates and its pixel); `#` starts a comment.
-Pose pose_from_file(const std::filesystem::path& path, const Mesh& mesh, const Camera& camera) {
-  std::ifstream in(path);
-  if (!in) throw InputError("cannot read the correspondence file", path);
-  std::vector<Eigen::Vector3d> points;
-  std::vector<Eigen::Vector2d> pixels;
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n) {
-    line = line.substr(0, line.find('#'));
-    std::istringstream ls(line);
-    std::vector<std::string> tok;
-    for (std::string t; ls >> t;) tok.push_back(t);
-    if (tok.empty()) continue;
-    std::vector<double> x;
-    for (const auto& t : tok) {
-      try {
-        size_t used = 0;
-        x.push_back(std::stod(t, &used));
-        if (used != t.size() || !std::isfinite(x.back())) throw std::invalid_argument(t);
-      } catch (const std::exception&) {
-        throw InputError("expected a number, found '" + t + "'", path, n);
-      }
-    }
-    if (x.size() == 3) {
-      const double id = x[0];
-      if (id != std::floor(id) || id < 0 || id >= mesh.num_vertices())
-        throw InputError("vertex index " + tok[0] + " out of range (the mesh has " +
-                             std::to_string(mesh.num_vertices()) + " vertices)",
-                         path, n);
-      points.push_back(mesh.vertices.row(static_cast<Eigen::Index>(id)).transpose());
-      pixels.emplace_back(x[1], x[2]);
-    } else if (x.size() == 5) {
-      points.emplace_back(x[0], x[1], x[2]);
-      pixels.emplace_back(x[3], x[4]);
-    } else {
-      throw InputError(
-          "expected 'VERTEX u v' or 'x y z u v', found " + std::to_string(x.size()) + " numbers",
-          path, n);
-    }
-  }
-  try {
-    return pose_from_correspondences(points, pixels, camera);
-  } catch (const InputError& e) {
-    throw InputError(e.message(), path);
-  }
-}
-
 }  // namespace
 
 int run_track(const std::vector<std::string>& argv) {
@@ -166,7 +118,7 @@ int run_track(const std::vector<std::string>& argv) {
       throw InputError("the first line must be a pose (not `lost`) for frame 0", initial, 1);
     start = *t.poses[0];
   } else {
-    start = pose_from_file(pairs, mesh, camera);
+    start = pose_from_correspondence_file(pairs, mesh, camera);
   }
   PoseTrack true_track;
   if (!truth.empty()) true_track = load_pose_file(truth);

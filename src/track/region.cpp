@@ -169,26 +169,36 @@ LineEstimate estimate_line(const cv::Mat& bgr, const ColourModel& model, const C
   double seg_f[128];
   const int ns = 2 * segments;
   for (int s = 0; s < ns; ++s) {
-    double lf = 0.0, lb = 0.0;
+    double pf_all = 1.0, pb_all = 1.0;
     for (int j = 0; j < k; ++j) {
-      lf += std::log(pf[s * k + j]);
-      lb += std::log(1.0f - pf[s * k + j]);
+      pf_all *= pf[s * k + j];
+      pb_all *= 1.0f - pf[s * k + j];
     }
-    seg_f[s] = 1.0 / (1.0 + std::exp(std::clamp(lb - lf, -50.0, 50.0)));
+    seg_f[s] = pf_all / (pf_all + pb_all);
   }
-  // Log-posterior of the contour at offset m (segments, positive outwards): segment s, centred
-  // at x = s - segments + 0.5, is foreground with probability h_f(x - m).
+  // Posterior of the contour at offset m (segments, positive outwards): segment s, centred at
+  // x = s - segments + 0.5, is foreground with probability h_f(x - m). x - m takes the values
+  // d + 0.5 for integer d in [-segments - range, segments + range).
+  double hf_table[128];
+  const int d0 = -segments - o.range;
+  for (int d = d0; d < segments + o.range; ++d)
+    hf_table[d - d0] = 0.5 - o.amplitude * std::tanh((d + 0.5) / (2.0 * o.slope));
   double logp[64];
   const int nm = 2 * o.range + 1;
   double best = -1e300;
   for (int mi = 0; mi < nm; ++mi) {
-    const double m = mi - o.range;
-    double l = 0.0;
+    const int m = mi - o.range;
+    // Products of at most 8 factors (each at least 0.5 - amplitude) stay far from underflow.
+    double l = 0.0, prod = 1.0;
     for (int s = 0; s < ns; ++s) {
-      const double x = s - segments + 0.5 - m;
-      const double hf = 0.5 - o.amplitude * std::tanh(x / (2.0 * o.slope));
-      l += std::log(hf * seg_f[s] + (1.0 - hf) * (1.0 - seg_f[s]));
+      const double hf = hf_table[s - segments - m - d0];
+      prod *= hf * seg_f[s] + (1.0 - hf) * (1.0 - seg_f[s]);
+      if ((s & 7) == 7) {
+        l += std::log(prod);
+        prod = 1.0;
+      }
     }
+    l += std::log(prod);
     logp[mi] = l;
     best = std::max(best, l);
   }
@@ -230,6 +240,18 @@ void line_pixels(const cv::Mat& bgr, const ContourPoint& c, int from_px, int to_
     if (p.x() < -0.5 || p.y() < -0.5 || p.x() > bgr.cols - 0.5 || p.y() > bgr.rows - 0.5) continue;
     out.push_back(pixel_at(bgr, p));
   }
+}
+
+double line_fraction(const cv::Mat& mask, const ContourPoint& c, int from_px, int to_px) {
+  int n = 0, on = 0;
+  for (int o = from_px; o < to_px; ++o) {
+    const Vector2d p = c.pixel + (o + 0.5) * c.normal;
+    const int x = static_cast<int>(std::lround(p.x())), y = static_cast<int>(std::lround(p.y()));
+    if (x < 0 || y < 0 || x >= mask.cols || y >= mask.rows) continue;
+    ++n;
+    on += mask.at<uchar>(y, x) != 0;
+  }
+  return n > 0 ? static_cast<double>(on) / n : 0.0;
 }
 
 }  // namespace pbve::track_detail

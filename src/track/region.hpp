@@ -94,4 +94,8 @@ LineEstimate estimate_line(const cv::Mat& bgr, const ColourModel& model, const C
 void line_pixels(const cv::Mat& bgr, const ContourPoint& c, int from_px, int to_px,
                  std::vector<cv::Vec3b>& out);
 
+/// Fraction of the pixels `from_px` to `to_px` along the line that are non-zero in `mask`
+/// (8-bit, the image's size).
+double line_fraction(const cv::Mat& mask, const ContourPoint& c, int from_px, int to_px);
+
 }  // namespace pbve::track_detail

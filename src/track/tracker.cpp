@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <map>
 #include <numbers>
+#include <sstream>
 #include <string>
 #include <utility>
 
@@ -74,6 +76,8 @@ struct Features {
 
 // Offsets searched along a correspondence line, in segments either way.
 constexpr int kLineRange = 5;
+// Grid spacing (pixels) of the keyframe view's map.
+constexpr int kViewStep = 4;
 // Keyframes kept (the first one always).
 constexpr size_t kMaxKeyframes = 24;
 
@@ -81,7 +85,8 @@ struct PoseTracker::Impl {
   Mesh mesh;
   Camera camera;
   TrackOptions options;
-  RayScene scene;  // mesh coordinates: rays are brought into the mesh frame
+  RayScene scene;          // mesh coordinates: rays are brought into the mesh frame
+  double mesh_size = 1.0;  // bounding box diagonal, mesh units
   std::vector<track_detail::MeshEdge> edges;
   track_detail::ColourModel colours;
   cv::Ptr<cv::ORB> orb;
@@ -89,8 +94,11 @@ struct PoseTracker::Impl {
   bool started = false;
   // Keyframe: its image, depth map (camera z, +infinity off the object) and corners.
   std::vector<cv::Mat> key_pyramid;
-  cv::Mat key_grey, key_depth;
+  cv::Mat key_grey, key_bgr, key_depth;
   Features key;
+  // This frame's occlusion map: 255 where the frame differs from the keyframe's view of the
+  // object warped to the predicted pose (an occluder in front of it); empty when unknown.
+  cv::Mat occlusion;
   size_t key_initial = 0;
   Pose key_pose;
   int key_generation = 0;  // keyframes between it and the first one (0 for the first)
@@ -99,7 +107,7 @@ struct PoseTracker::Impl {
   // the first (fewest keyframe changes, least drift) instead of the latest.
   struct Keyframe {
     std::vector<cv::Mat> pyramid;
-    cv::Mat grey, depth;
+    cv::Mat grey, bgr, depth;
     Features corners;
     Pose pose;
     int generation = 0;
@@ -205,9 +213,15 @@ struct PoseTracker::Impl {
     std::vector<cv::Point2f> corners;
     // Keep corners at least half a Lucas-Kanade window inside the silhouette: a window that
     // straddles it sees the static background and drags the flow towards zero.
-    cv::goodFeaturesToTrack(g, corners, options.max_corners, options.corner_quality,
-                            options.corner_distance, mask(pose, options.window | 1));
+    const cv::Mat m = mask(pose, options.window | 1);
+    const cv::Rect box = cv::boundingRect(m);
+    if (box.area() == 0) return {};
+    // Searched in the object's box only (the quality level is relative to its best corner).
+    const cv::Rect roi = (box + cv::Size(8, 8) - cv::Point(4, 4)) & cv::Rect(0, 0, g.cols, g.rows);
+    cv::goodFeaturesToTrack(g(roi), corners, options.max_corners, options.corner_quality,
+                            options.corner_distance, m(roi));
     if (corners.empty()) return {};
+    for (auto& c : corners) c += cv::Point2f(static_cast<float>(roi.x), static_cast<float>(roi.y));
     cv::cornerSubPix(g, corners, cv::Size(5, 5), cv::Size(-1, -1),
                      cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 20, 0.01));
     if (options.region && !colours.empty() && !bgr.empty()) {
@@ -288,6 +302,7 @@ struct PoseTracker::Impl {
       if (!ok[i] || !ok_back[i]) continue;
       if (cv::norm(back[i] - from.pixels[i]) > options.back_track_px) continue;
       if (to[i].x < 0 || to[i].y < 0 || to[i].x > w - 1 || to[i].y > h - 1) continue;
+      if (occluded_at(to[i])) continue;
       object.emplace_back(from.points[i].x(), from.points[i].y(), from.points[i].z());
       image.emplace_back(to[i].x, to[i].y);
       kept.push_back(i);
@@ -359,41 +374,99 @@ struct PoseTracker::Impl {
   // keyframe saw it). Lucas-Kanade between this view and the frame then only has to recover
   // the pose error, not the foreshortening and turning since the keyframe, which drag
   // corners on a curved turning surface off their points.
-  cv::Mat keyframe_view(const Pose& pose, const cv::Mat& current) const {
+  //
+  // Also sets `occlusion`: where the keyframe's colours, warped, differ from the frame's after
+  // a blur that forgives a misalignment of a few pixels, something else covers the object.
+  cv::Mat keyframe_view(const Pose& pose, const cv::Mat& current, const cv::Mat& current_bgr) {
     cv::Mat out = current.clone();
+    occlusion = cv::Mat::zeros(current.size(), CV_8U);
     const cv::Rect box = object_box(pose, options.window);
     if (box.area() == 0) return out;
-    const std::vector<RayHit> hits = cast_box(pose, box);
-    size_t k = 0;
-    for (int y = box.y; y < box.y + box.height; ++y)
-      for (int x = box.x; x < box.x + box.width; ++x, ++k) {
-        if (hits[k].triangle < 0) continue;
-        const Vector3d xk = key_pose.apply(hit_point(hits[k]));
-        if (xk.z() <= 0) continue;
-        const Vector2d q = camera.project(xk);
-        const int qx = static_cast<int>(std::lround(q.x())),
-                  qy = static_cast<int>(std::lround(q.y()));
-        if (qx < 0 || qy < 0 || qx >= camera.width - 1 || qy >= camera.height - 1) continue;
-        if (!(std::abs(key_depth.at<float>(qy, qx) - xk.z()) <= 0.01 * xk.z())) continue;
-        const int x0 = static_cast<int>(std::floor(q.x())),
-                  y0 = static_cast<int>(std::floor(q.y()));
-        const double fx = q.x() - x0, fy = q.y() - y0;
-        const double v = (1 - fy) * ((1 - fx) * key_grey.at<uchar>(y0, x0) +
-                                     fx * key_grey.at<uchar>(y0, x0 + 1)) +
-                         fy * ((1 - fx) * key_grey.at<uchar>(y0 + 1, x0) +
-                               fx * key_grey.at<uchar>(y0 + 1, x0 + 1));
-        out.at<uchar>(y, x) = cv::saturate_cast<uchar>(v);
+    cv::Mat view_bgr(box.size(), CV_8UC3, cv::Scalar::all(0));
+    cv::Mat shown(box.size(), CV_8U, cv::Scalar(0));
+    // The map from this view to the keyframe's pixels on a grid of kViewStep pixels (a ray per
+    // node), interpolated bilinearly inside cells whose four nodes the keyframe saw.
+    const int gw = box.width / kViewStep + 2, gh = box.height / kViewStep + 2;
+    std::vector<Vector2d> nodes;
+    nodes.reserve(static_cast<size_t>(gw * gh));
+    for (int j = 0; j < gh; ++j)
+      for (int i = 0; i < gw; ++i) nodes.emplace_back(box.x + i * kViewStep, box.y + j * kViewStep);
+    const std::vector<RayHit> hits = cast(nodes, pose);
+    std::vector<cv::Point2f> map(nodes.size());
+    std::vector<char> seen(nodes.size(), 0);
+    for (size_t n = 0; n < nodes.size(); ++n) {
+      if (hits[n].triangle < 0) continue;
+      const Vector3d xk = key_pose.apply(hit_point(hits[n]));
+      if (xk.z() <= 0) continue;
+      const Vector2d q = camera.project(xk);
+      const int qx = static_cast<int>(std::lround(q.x())),
+                qy = static_cast<int>(std::lround(q.y()));
+      if (qx < 0 || qy < 0 || qx >= camera.width - 1 || qy >= camera.height - 1) continue;
+      if (!(std::abs(key_depth.at<float>(qy, qx) - xk.z()) <= 0.01 * xk.z())) continue;
+      map[n] = cv::Point2f(static_cast<float>(q.x()), static_cast<float>(q.y()));
+      seen[n] = 1;
+    }
+    const float inv = 1.0f / kViewStep;
+    for (int y = box.y; y < box.y + box.height; ++y) {
+      const int j = (y - box.y) / kViewStep;
+      const float fy = (y - box.y) * inv - j;
+      uchar* row = out.ptr<uchar>(y);
+      for (int x = box.x; x < box.x + box.width; ++x) {
+        const int i = (x - box.x) / kViewStep;
+        const size_t n00 = static_cast<size_t>(j * gw + i), n10 = n00 + 1,
+                     n01 = n00 + static_cast<size_t>(gw), n11 = n01 + 1;
+        if (!(seen[n00] && seen[n10] && seen[n01] && seen[n11])) continue;
+        const float fx = (x - box.x) * inv - i;
+        const cv::Point2f q = (1 - fy) * ((1 - fx) * map[n00] + fx * map[n10]) +
+                              fy * ((1 - fx) * map[n01] + fx * map[n11]);
+        const int x0 = static_cast<int>(q.x), y0 = static_cast<int>(q.y);
+        if (x0 < 0 || y0 < 0 || x0 >= camera.width - 1 || y0 >= camera.height - 1) continue;
+        const float ax = q.x - x0, ay = q.y - y0;
+        const uchar* k0 = key_grey.ptr<uchar>(y0) + x0;
+        const uchar* k1 = key_grey.ptr<uchar>(y0 + 1) + x0;
+        const float v =
+            (1 - ay) * ((1 - ax) * k0[0] + ax * k0[1]) + ay * ((1 - ax) * k1[0] + ax * k1[1]);
+        row[x] = cv::saturate_cast<uchar>(v);
+        const cv::Vec3b* c0 = key_bgr.ptr<cv::Vec3b>(y0) + x0;
+        const cv::Vec3b* c1 = key_bgr.ptr<cv::Vec3b>(y0 + 1) + x0;
+        cv::Vec3b& vc = view_bgr.at<cv::Vec3b>(y - box.y, x - box.x);
+        for (int ch = 0; ch < 3; ++ch)
+          vc[ch] = cv::saturate_cast<uchar>((1 - ay) * ((1 - ax) * c0[0][ch] + ax * c0[1][ch]) +
+                                            ay * ((1 - ax) * c1[0][ch] + ax * c1[1][ch]));
+        shown.at<uchar>(y - box.y, x - box.x) = 255;
       }
+    }
+    if (options.occlusion_colour_difference > 0) {
+      cv::Mat a, b, d;
+      const cv::Size k(7, 7);
+      cv::GaussianBlur(view_bgr, a, k, 2.0);
+      cv::GaussianBlur(current_bgr(box), b, k, 2.0);
+      cv::absdiff(a, b, d);
+      cv::Mat sum;
+      cv::transform(d, sum, cv::Matx13f(1, 1, 1));
+      cv::Mat hidden = sum > options.occlusion_colour_difference;
+      // Only where the view and its blur lie on the object.
+      cv::erode(shown, shown, cv::getStructuringElement(cv::MORPH_RECT, k));
+      hidden &= shown;
+      hidden.copyTo(occlusion(box));
+    }
     return out;
+  }
+
+  bool occluded_at(cv::Point2f p) const {
+    if (occlusion.empty()) return false;
+    const int x = static_cast<int>(std::lround(p.x)), y = static_cast<int>(std::lround(p.y));
+    return x >= 0 && y >= 0 && x < occlusion.cols && y < occlusion.rows &&
+           occlusion.at<uchar>(y, x) != 0;
   }
 
   // Keyframe corners into `to_pyramid` from the keyframe's view at `predicted`: each starts at
   // its projection there (where the view shows it) and must come back within back_track_px.
-  void follow_key(const cv::Mat& current, const std::vector<cv::Mat>& to_pyramid,
-                  const Pose& predicted, std::vector<cv::Point3d>& object,
-                  std::vector<cv::Point2d>& image) const {
+  void follow_key(const cv::Mat& current, const cv::Mat& current_bgr,
+                  const std::vector<cv::Mat>& to_pyramid, const Pose& predicted,
+                  std::vector<cv::Point3d>& object, std::vector<cv::Point2d>& image) {
     if (key.size() == 0) return;
-    const cv::Mat view = keyframe_view(predicted, current);
+    const cv::Mat view = keyframe_view(predicted, current, current_bgr);
     std::vector<cv::Point2f> from;
     std::vector<size_t> id;
     std::vector<Vector2d> px;
@@ -435,6 +508,7 @@ struct PoseTracker::Impl {
       if (!ok[j] || !ok_back[j]) continue;
       if (cv::norm(back[j] - f2[j]) > options.back_track_px) continue;
       if (to[j].x < 0 || to[j].y < 0 || to[j].x > w - 1 || to[j].y > h - 1) continue;
+      if (occluded_at(to[j])) continue;
       const Vector3d& p = key.points[id2[j]];
       object.emplace_back(p.x(), p.y(), p.z());
       image.emplace_back(to[j].x, to[j].y);
@@ -446,6 +520,7 @@ struct PoseTracker::Impl {
     key = k.corners;
     key_pyramid = k.pyramid;
     key_grey = k.grey;
+    key_bgr = k.bgr;
     key_depth = k.depth;
     key_pose = k.pose;
     key_initial = key.size();
@@ -453,12 +528,13 @@ struct PoseTracker::Impl {
     key_index = static_cast<int>(i);
   }
 
-  void set_keyframe(const cv::Mat& g, const std::vector<cv::Mat>& pyr, const Pose& pose,
-                    Features corners) {
+  void set_keyframe(const cv::Mat& g, const cv::Mat& bgr, const std::vector<cv::Mat>& pyr,
+                    const Pose& pose, Features corners) {
     Keyframe k;
     k.corners = std::move(corners);
     k.pyramid = pyr;
     k.grey = g;
+    k.bgr = bgr;
     k.pose = pose;
     k.depth = depth_map(pose);
     k.generation = keyframes.empty() ? 0 : key_generation + 1;
@@ -520,7 +596,12 @@ struct PoseTracker::Impl {
     int agree = 0;
     for (const auto& c : s.contour) {
       s.lines.push_back(track_detail::estimate_line(bgr, colours, c, lo));
-      const auto& l = s.lines.back();
+      auto& l = s.lines.back();
+      // Covered where the keyframe's view says so, over the inner half of the line.
+      if (!occlusion.empty() &&
+          track_detail::line_fraction(occlusion, c, -(lo.range + lo.context) * scale, -1) >
+              options.occluded_line_fraction)
+        l.inner_foreground = 0.0;
       agree += l.valid && l.inner_foreground >= options.occlusion_threshold &&
                l.outer_background >= options.occlusion_threshold &&
                std::abs(l.mean_px) <= 2.0 * scale;
@@ -661,22 +742,41 @@ struct PoseTracker::Impl {
   }
 
   // The pose from ORB matches of the whole frame against the keyframes' landmarks, or nullopt.
-  std::optional<Pose> redetect(const cv::Mat& g, int& inlier_count) const {
+  // `near`: where the object was last seen; the search covers the object's box there grown by
+  // its size each way (the whole frame when that misses the image).
+  std::optional<Pose> redetect(const cv::Mat& g, const Pose& near, int& inlier_count) const {
     inlier_count = 0;
     if (!orb || landmark_points.size() < 4) return std::nullopt;
     std::vector<cv::KeyPoint> kp;
     cv::Mat desc;
-    cv::Ptr<cv::ORB> detector = cv::ORB::create(1500);
-    detector->detectAndCompute(g, cv::noArray(), kp, desc);
+    cv::Mat where;
+    const cv::Rect seen = object_box(near, 0);
+    if (seen.area() > 0) {
+      where = cv::Mat::zeros(g.size(), CV_8U);
+      where(object_box(near, std::max(seen.width, seen.height))).setTo(255);
+    }
+    cv::Ptr<cv::ORB> detector = cv::ORB::create(1000);
+    detector->detectAndCompute(g, where, kp, desc);  // an empty mask: the whole frame
     if (kp.size() < 4) return std::nullopt;
     cv::BFMatcher matcher(cv::NORM_HAMMING);
     std::vector<std::vector<cv::DMatch>> knn;
-    matcher.knnMatch(desc, landmark_descriptors, knn, 2);
+    matcher.knnMatch(desc, landmark_descriptors, knn, 4);
     std::vector<cv::Point3d> object;
     std::vector<cv::Point2d> image;
+    // Ratio test against the best match of another mesh point: keyframes share points, whose
+    // near-identical descriptors would fail a plain ratio test.
+    const double same_point = 0.01 * mesh_size;
     for (const auto& m : knn) {
-      if (m.size() < 2 || m[0].distance > 0.8f * m[1].distance) continue;
+      if (m.empty()) continue;
       const Vector3d& p = landmark_points[static_cast<size_t>(m[0].trainIdx)];
+      bool distinct = true;
+      for (size_t r = 1; r < m.size(); ++r) {
+        if ((landmark_points[static_cast<size_t>(m[r].trainIdx)] - p).norm() <= same_point)
+          continue;
+        distinct = m[0].distance < 0.8f * m[r].distance;
+        break;
+      }
+      if (!distinct) continue;
       object.emplace_back(p.x(), p.y(), p.z());
       image.emplace_back(kp[static_cast<size_t>(m[0].queryIdx)].pt);
     }
@@ -717,6 +817,8 @@ PoseTracker::PoseTracker(const Mesh& mesh, const Camera& camera, TrackOptions op
   m_impl->options = options;
   m_impl->scene.set_mesh(mesh.vertices, mesh.triangles);
   m_impl->edges = track_detail::mesh_edges(mesh);
+  m_impl->mesh_size =
+      (mesh.vertices.colwise().maxCoeff() - mesh.vertices.colwise().minCoeff()).norm();
 }
 
 PoseTracker::~PoseTracker() = default;
@@ -745,7 +847,7 @@ void PoseTracker::start(const cv::Mat& frame, const Pose& pose) {
                      " needed): check the initial pose and the intrinsics");
   m.init_colours(bgr, pose);
   m.keyframes.clear();
-  m.set_keyframe(g, m.pyramid(g), pose, std::move(m.key));
+  m.set_keyframe(g, bgr, m.pyramid(g), pose, std::move(m.key));
   m.prev_grey = g;
   m.prev_bgr = bgr;
   m.prev_pyramid = m.key_pyramid;
@@ -778,8 +880,9 @@ std::optional<Pose> PoseTracker::track(const cv::Mat& frame, TrackFrameInfo* inf
   std::vector<cv::Point3d> object;
   std::vector<cv::Point2d> image;
   if (!m.last_lost) m.choose_keyframe(predicted);
+  m.occlusion = cv::Mat();
   if (m.options.warp_keyframe)
-    m.follow_key(g, pyr, predicted, object, image);
+    m.follow_key(g, bgr, pyr, predicted, object, image);
   else
     m.follow(m.key_pyramid, m.key, pyr, predicted, object, image);
   const size_t n_key = object.size();
@@ -857,7 +960,7 @@ std::optional<Pose> PoseTracker::track(const cv::Mat& frame, TrackFrameInfo* inf
   if (!ok && m.options.redetect) {
     // Re-detection against the keyframes' descriptors, then the same refinement.
     int count = 0;
-    const std::optional<Pose> found = m.redetect(g, count);
+    const std::optional<Pose> found = m.redetect(g, m.prev_pose, count);
     if (found) {
       Impl::Silhouette s2;
       const Pose p = finish(*found, {}, {}, s2);
@@ -899,11 +1002,15 @@ std::optional<Pose> PoseTracker::track(const cv::Mat& frame, TrackFrameInfo* inf
 
   const double turned =
       rotation_angle(m.key_pose.rotation, pose.rotation) * 180.0 / std::numbers::pi;
-  if (out.relocalized || turned > m.options.keyframe_angle_deg ||
-      key_inliers < m.options.keyframe_keep * static_cast<double>(m.key_initial)) {
+  // A keyframe passes its pose on to every later frame that follows it: none is taken while
+  // the silhouette agrees poorly (an occluder over the object), where its corners would run
+  // short too. Corners lost to an occluder come back when it has passed.
+  const bool clear_view = !m.options.region || out.agreement >= m.options.keyframe_agreement;
+  if (clear_view && (out.relocalized || turned > m.options.keyframe_angle_deg ||
+                     key_inliers < m.options.keyframe_keep * static_cast<double>(m.key_initial))) {
     Features fresh = m.detect(g, bgr, pose);
     if (static_cast<int>(fresh.size()) >= m.options.min_inliers) {
-      m.set_keyframe(g, pyr, pose, std::move(fresh));
+      m.set_keyframe(g, bgr, pyr, pose, std::move(fresh));
       out.new_keyframe = true;
       if (m.options.redetect && out.agreement >= m.options.colour_update_agreement)
         m.add_landmarks(g, pose);
@@ -980,6 +1087,55 @@ Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
                      std::to_string(rms) + " pixels (at most " + std::to_string(max_rms_px) +
                      " accepted): check the pairs and the intrinsics");
   return p;
+}
+
+// Correspondence file: one pair per line, `VERTEX u v` (a mesh vertex index and its pixel) or
+// `x y z u v` (a point in mesh coordinates and its pixel); `#` starts a comment.
+Pose pose_from_correspondence_file(const std::filesystem::path& path, const Mesh& mesh,
+                                   const Camera& camera, double max_rms_px) {
+  std::ifstream in(path);
+  if (!in) throw InputError("cannot read the correspondence file", path);
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector2d> pixels;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    line = line.substr(0, line.find('#'));
+    std::istringstream ls(line);
+    std::vector<std::string> tok;
+    for (std::string t; ls >> t;) tok.push_back(t);
+    if (tok.empty()) continue;
+    std::vector<double> x;
+    for (const auto& t : tok) {
+      try {
+        size_t used = 0;
+        x.push_back(std::stod(t, &used));
+        if (used != t.size() || !std::isfinite(x.back())) throw std::invalid_argument(t);
+      } catch (const std::exception&) {
+        throw InputError("expected a number, found '" + t + "'", path, n);
+      }
+    }
+    if (x.size() == 3) {
+      const double id = x[0];
+      if (id != std::floor(id) || id < 0 || id >= mesh.num_vertices())
+        throw InputError("vertex index " + tok[0] + " out of range (the mesh has " +
+                             std::to_string(mesh.num_vertices()) + " vertices)",
+                         path, n);
+      points.push_back(mesh.vertices.row(static_cast<Eigen::Index>(id)).transpose());
+      pixels.emplace_back(x[1], x[2]);
+    } else if (x.size() == 5) {
+      points.emplace_back(x[0], x[1], x[2]);
+      pixels.emplace_back(x[3], x[4]);
+    } else {
+      throw InputError(
+          "expected 'VERTEX u v' or 'x y z u v', found " + std::to_string(x.size()) + " numbers",
+          path, n);
+    }
+  }
+  try {
+    return pose_from_correspondences(points, pixels, camera, max_rms_px);
+  } catch (const InputError& e) {
+    throw InputError(e.message(), path);
+  }
 }
 
 void draw_mesh_edges(cv::Mat& image, const Mesh& mesh, const Camera& camera, const Pose& pose,

@@ -1,14 +1,17 @@
 // `pbve track` end to end: pose file and overlay written, errors for a missing initial pose and
 // bad correspondences.
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 
 #include <gtest/gtest.h>
 
 #include "pbve/core/footage.hpp"
 #include "pbve/core/pose.hpp"
+#include "pbve/track/tracker.hpp"
 #include "support/cli.hpp"
 #include "support/test_util.hpp"
 
@@ -86,6 +89,92 @@ TEST_F(TrackCli, BadCorrespondenceLineNamesFileAndLine) {
   EXPECT_NE(r.output.find("pairs.txt:2: expected a number, found 'x'"), std::string::npos)
       << r.output;
   EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+}
+
+// The synthesized scene with `poses: track` (and `extra` keys after it) instead of its pose file.
+std::string tracking_scene(const fs::path& dir, const std::string& extra) {
+  std::ifstream in(dir / "scene.yaml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  const std::string from = "  poses: poses.txt\n";
+  const size_t at = text.find(from);
+  if (at == std::string::npos) return {};
+  text.replace(at, from.size(), "  poses: track\n" + extra);
+  std::ofstream(dir / "track_scene.yaml") << text;
+  return text;
+}
+
+int line_of(const std::string& text, const std::string& needle) {
+  const size_t at = text.find(needle);
+  return at == std::string::npos
+             ? -1
+             : 1 + static_cast<int>(std::count(text.begin(), text.begin() + at, '\n'));
+}
+
+TEST_F(TrackCli, SceneWithPosesTrackTracksFirstThenEdits) {
+  ASSERT_FALSE(tracking_scene(dir.path(), "  initial_pose: init.txt\n").empty());
+  const CmdResult r = pbve_cmd("edit " + (dir / "track_scene.yaml").string() + " --no-control");
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("tracked poses:"), std::string::npos) << r.output;
+  // The tracked poses next to the edited video, one per frame, close to the true ones.
+  const pbve::PoseTrack tracked = pbve::load_pose_file(dir / "edited.poses.txt");
+  const pbve::PoseTrack truth = pbve::load_pose_file(dir / "poses.txt");
+  const pbve::Mesh mesh = pbve::load_mesh(dir / "object.obj");
+  pbve::Camera cam;
+  cam.fx = cam.fy = 600;
+  cam.cx = 319.5;
+  cam.cy = 239.5;
+  cam.width = 640;
+  cam.height = 480;
+  ASSERT_EQ(tracked.size(), 12);
+  for (int t = 0; t < 12; ++t) {
+    ASSERT_TRUE(tracked.poses[static_cast<size_t>(t)]) << "frame " << t;
+    EXPECT_LE(pbve::reprojection_error_px(mesh, cam, *tracked.poses[static_cast<size_t>(t)],
+                                          *truth.poses[static_cast<size_t>(t)]),
+              5.0)
+        << "frame " << t;
+  }
+  std::ifstream report(dir / "report.json");
+  std::stringstream rs;
+  rs << report.rdbuf();
+  EXPECT_NE(rs.str().find("\"tracking\""), std::string::npos);
+  EXPECT_NE(rs.str().find("\"lost_frames\": []"), std::string::npos) << rs.str().substr(0, 400);
+  EXPECT_TRUE(fs::exists(dir / "edited.mp4"));
+}
+
+TEST_F(TrackCli, PosesTrackWithoutAnInitialPoseNamesTheKeyAndLine) {
+  const std::string text = tracking_scene(dir.path(), "");
+  ASSERT_FALSE(text.empty());
+  const CmdResult r = pbve_cmd("edit " + (dir / "track_scene.yaml").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  const std::string where =
+      "track_scene.yaml:" + std::to_string(line_of(text, "poses: track")) + ": key 'object.poses'";
+  EXPECT_NE(r.output.find(where), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("needs the pose in the first frame"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "edited.mp4"));
+}
+
+TEST_F(TrackCli, TrackingKeysWithoutPosesTrackAreErrors) {
+  std::ifstream in(dir / "scene.yaml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  const std::string from = "  poses: poses.txt\n";
+  text.replace(text.find(from), from.size(), from + "  initial_pose: init.txt\n");
+  std::ofstream(dir / "bad.yaml") << text;
+  const CmdResult r = pbve_cmd("edit " + (dir / "bad.yaml").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  const std::string where = "bad.yaml:" + std::to_string(line_of(text, "initial_pose")) +
+                            ": key 'object.initial_pose': only used with 'poses: track'";
+  EXPECT_NE(r.output.find(where), std::string::npos) << r.output;
+  // A missing initial pose file names its key.
+  tracking_scene(dir.path(), "  initial_pose: missing.txt\n");
+  const CmdResult m = pbve_cmd("edit " + (dir / "track_scene.yaml").string());
+  EXPECT_EQ(m.status, 1) << m.output;
+  EXPECT_NE(m.output.find("key 'object.initial_pose': initial pose file not found"),
+            std::string::npos)
+      << m.output;
 }
 
 }  // namespace

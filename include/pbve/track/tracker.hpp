@@ -19,6 +19,7 @@
 ///   than `keyframe_angle_deg` since it; a frame with too few inliers is `lost` and the
 ///   keyframe is kept, so tracking resumes when the object reappears near its last pose.
 
+#include <filesystem>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -59,7 +60,7 @@ struct TrackOptions {
   int region_iterations = 2;        ///< Gauss-Newton iterations per scale
   int contour_points = 200;         ///< at most this many correspondence lines
   double contour_spacing_px = 3.0;  ///< at least this far apart along the contour
-  double region_weight = 1.0;       ///< of a line (inverse variance, pixels^-2) vs. a corner
+  double region_weight = 0.5;       ///< of a line (inverse variance, pixels^-2) vs. a corner
   double feature_sigma_px = 1.0;    ///< corner reprojection noise, pixels
   int colour_band_px = 15;          ///< colour statistics from this far either side of the contour
   double colour_rate = 0.1;         ///< weight of a frame's colours in the running statistics
@@ -67,7 +68,14 @@ struct TrackOptions {
   /// foreground probability) is covered by something else and left out.
   double occlusion_threshold = 0.5;
   double colour_update_threshold = 0.65;  ///< object colours only from lines above this
-  double colour_update_agreement = 0.5;   ///< statistics updated only at this agreement or more
+  /// Occlusion map: the sum over B, G, R of the difference between the frame and the
+  /// keyframe's view of the object warped to the predicted pose (both blurred) above which a
+  /// pixel is covered by something else (0: no map). Corners landing there and lines whose
+  /// inner half lies there by more than occluded_line_fraction are left out.
+  double occlusion_colour_difference = 90.0;
+  double occluded_line_fraction = 0.3;
+  double colour_update_agreement = 0.5;  ///< statistics updated only at this agreement or more
+  double keyframe_agreement = 0.65;      ///< new keyframes only at this agreement or more
   /// The frame is lost below this silhouette agreement, or below region_only_agreement when
   /// the corners give no pose.
   double lost_agreement = 0.2;
@@ -138,6 +146,13 @@ TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& came
 Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
                                const std::vector<Eigen::Vector2d>& pixels, const Camera& camera,
                                double max_rms_px = 5.0);
+
+/// The pose in frame 0 from a correspondence file: one pair per line, `VERTEX u v` (a mesh
+/// vertex index and the pixel where it appears) or `x y z u v` (a point in mesh coordinates and
+/// its pixel); `#` starts a comment. Solved by pose_from_correspondences(). Throws InputError
+/// naming the file (and the line, for a bad line).
+Pose pose_from_correspondence_file(const std::filesystem::path& path, const Mesh& mesh,
+                                   const Camera& camera, double max_rms_px = 5.0);
 
 /// Draws the mesh's silhouette and crease edges (dihedral angle above `crease_deg`) of the
 /// faces turned towards the camera, projected with `pose`, on `image` (BGR, the camera's size).
