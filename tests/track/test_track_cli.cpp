@@ -11,6 +11,7 @@
 
 #include "pbve/core/footage.hpp"
 #include "pbve/core/pose.hpp"
+#include "pbve/edit/synth.hpp"
 #include "pbve/track/tracker.hpp"
 #include "support/cli.hpp"
 #include "support/test_util.hpp"
@@ -89,6 +90,38 @@ TEST_F(TrackCli, BadCorrespondenceLineNamesFileAndLine) {
   EXPECT_NE(r.output.find("pairs.txt:2: expected a number, found 'x'"), std::string::npos)
       << r.output;
   EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+}
+
+TEST_F(TrackCli, ObjectLeavingTheViewForGoodExitsWithStatus1AndLostFrames) {
+  // The board of the fixture's clip, still for 6 frames, then moving right out of the image.
+  const pbve::Mesh mesh = pbve::load_mesh(dir / "object.obj");
+  const pbve::Pose first = *pbve::load_pose_file(dir / "init.txt").poses[0];
+  const cv::Mat background = pbve::make_background(cv::Size(640, 480), 7);
+  pbve::Camera cam;
+  cam.fx = cam.fy = 600;
+  cam.cx = 319.5;
+  cam.cy = 239.5;
+  cam.width = 640;
+  cam.height = 480;
+  {
+    pbve::VideoWriter w(dir / "leaving.mkv", 30.0, cv::Size(640, 480));
+    for (int t = 0; t < 30; ++t) {
+      pbve::Pose p = first;
+      p.translation.x() += t < 6 ? 0.0 : 0.05 * (t - 6);
+      w.write(pbve::render_object(mesh, p, cam, pbve::procedural_texture(0.06), background, 1));
+    }
+    w.close();
+  }
+  const CmdResult r =
+      pbve_cmd("track " + (dir / "leaving.mkv").string() + " " + (dir / "object.obj").string() +
+               " --camera 600,600,319.5,239.5 --initial-pose " + (dir / "init.txt").string() +
+               " -o " + (dir / "tracked.txt").string() + " --quiet");
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("the object left the view at frame"), std::string::npos) << r.output;
+  const pbve::PoseTrack t = pbve::load_pose_file(dir / "tracked.txt");
+  ASSERT_EQ(t.size(), 30);
+  EXPECT_TRUE(t.poses[0]);
+  EXPECT_FALSE(t.poses[29]);
 }
 
 // The synthesized scene with `poses: track` (and `extra` keys after it) instead of its pose file.
