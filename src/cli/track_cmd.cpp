@@ -149,7 +149,7 @@ int run_track(const std::vector<std::string>& argv) {
                             : std::numeric_limits<double>::infinity());
     char row[256];
     std::snprintf(row, sizeof row, "%d,%d,%d,%d,%.3f,%.3f,%d,%d,", t, info.lost ? 1 : 0,
-                  info.correspondences, info.inliers, info.rms_px, t == 0 ? 1.0 : info.agreement,
+                  info.correspondences, info.inliers, info.rms_px, info.agreement,
                   info.new_keyframe ? 1 : 0, info.relocalized ? 1 : 0);
     table << row;
     if (have_truth) table << (pose ? std::to_string(errors.back()) : std::string("inf"));

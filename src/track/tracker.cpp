@@ -1035,6 +1035,7 @@ TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& came
     if (t == 0) {
       tracker.start(frame, initial);
       pose = initial;
+      info.agreement = 1.0;  // the given pose
     } else {
       pose = tracker.track(frame, &info);
     }

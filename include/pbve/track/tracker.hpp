@@ -3,21 +3,22 @@
 /// Model-based pose tracking (the preprocessing the paper assumes): the pose of a known mesh
 /// in every frame of footage from a static camera, given its pose in the first frame.
 ///
-/// The tracker follows image corners on the object and knows each one's 3-D point on the mesh
-/// (a ray cast through the pose that found it), so every frame is a perspective-n-point problem
-/// solved robustly (RANSAC, then Levenberg-Marquardt on the inliers):
-/// - corners of a keyframe (an earlier frame with its pose) are followed into the current frame
-///   by pyramidal Lucas-Kanade, started at their projections under the predicted pose
-///   (constant velocity) and kept only when tracking back lands within a pixel of where they
-///   started; keyframes limit drift to the keyframe changes;
-/// - corners of the previous frame (found anew in every frame) are followed the same way, but
-///   only when fewer than 3 x min_inliers keyframe corners survive: they are re-detected on an
-///   occluder too, whereas keyframe corners covered by one fail the backward check;
-/// - corners stay half a window inside the silhouette, and only where the window sees one
-///   surface (no occluding contour of the object itself across it);
-/// - a new keyframe is taken when the keyframe's corners run low or the object turned more
-///   than `keyframe_angle_deg` since it; a frame with too few inliers is `lost` and the
-///   keyframe is kept, so tracking resumes when the object reappears near its last pose.
+/// Each frame's pose minimizes a joint cost, by Gauss-Newton from the corners' RANSAC pose,
+/// coarse to fine (docs/tracking.md has the details and the measured accuracy):
+/// - corners: keyframe corners with their 3-D points on the mesh (a ray cast through the pose
+///   that found them), followed by pyramidal Lucas-Kanade from the keyframe's view warped to
+///   the predicted pose (constant velocity) through the mesh, kept when tracking back lands
+///   within a pixel; their reprojection errors (Huber);
+/// - silhouette: along correspondence lines normal to the projected outer contour, the
+///   posterior of where the image contour lies from foreground/background colour histograms
+///   (region-based, after PWP3D / RBOT / SRT3D), each line weighted by its inverse variance.
+///
+/// Occluders (a hand): pixels where the frame differs from the warped keyframe view, and lines
+/// whose inner side does not look like the object, are left out; the colour statistics learn
+/// only colours the other side does not claim; no keyframe is taken while the silhouette
+/// agrees poorly. A frame whose silhouette agreement is too low is `lost`; ORB descriptors of
+/// the keyframes then search the frame near the last pose (re-detection). Keyframes are kept,
+/// and a view seen before is followed from the one nearest to the first keyframe.
 
 #include <filesystem>
 #include <functional>
