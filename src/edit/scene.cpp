@@ -229,11 +229,28 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
   require(r, root, "object", "");
   {
     const YAML::Node n = root["object"];
-    r.check_map(n, "object", {"mesh", "poses", "scale", "refine", "fracture", "anchors"});
+    r.check_map(n, "object",
+                {"mesh", "poses", "initial_pose", "correspondences", "tracked_poses", "scale",
+                 "refine", "fracture", "anchors"});
     require(r, n, "mesh", "object");
     require(r, n, "poses", "object");
     s.object.mesh = r.path(n["mesh"], "object.mesh");
-    s.object.poses = r.path(n["poses"], "object.poses");
+    // `poses: track` runs the tracker first (a file named track: `./track`).
+    s.object.track = n["poses"].IsScalar() && n["poses"].Scalar() == "track";
+    if (!s.object.track) s.object.poses = r.path(n["poses"], "object.poses");
+    for (const char* k : {"initial_pose", "correspondences", "tracked_poses"}) {
+      if (!n[k]) continue;
+      const std::string key = std::string("object.") + k;
+      if (!s.object.track) r.fail(n[k], key, "only used with 'poses: track'");
+      (k[0] == 'i'   ? s.object.initial_pose
+       : k[0] == 'c' ? s.object.correspondences
+                     : s.object.tracked_poses) = r.path(n[k], key);
+    }
+    if (s.object.track && !n["initial_pose"] == !n["correspondences"])
+      r.fail(n["poses"], "object.poses",
+             "'poses: track' needs the pose in the first frame: give exactly one of "
+             "object.initial_pose (a pose file) or object.correspondences (at least 4 "
+             "'VERTEX u v' or 'x y z u v' lines)");
     if (n["scale"]) s.object.scale = r.positive(n["scale"], "object.scale");
     if (n["refine"]) s.object.refine = r.positive(n["refine"], "object.refine");
     if (n["fracture"]) {
@@ -440,7 +457,18 @@ std::string scene_to_yaml(const Scene& s) {
     << YAML::Value << s.cx << YAML::Key << "cy" << YAML::Value << s.cy << YAML::EndMap;
   e << YAML::Key << "object" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "mesh" << YAML::Value << s.object.mesh.string();
-  e << YAML::Key << "poses" << YAML::Value << s.object.poses.string();
+  if (s.object.track) {
+    e << YAML::Key << "poses" << YAML::Value << "track";
+    if (!s.object.initial_pose.empty())
+      e << YAML::Key << "initial_pose" << YAML::Value << s.object.initial_pose.string();
+    if (!s.object.correspondences.empty())
+      e << YAML::Key << "correspondences" << YAML::Value << s.object.correspondences.string();
+    e << YAML::Key << "tracked_poses" << YAML::Value
+      << (s.object.tracked_poses.empty() ? std::string("automatic")
+                                         : s.object.tracked_poses.string());
+  } else {
+    e << YAML::Key << "poses" << YAML::Value << s.object.poses.string();
+  }
   e << YAML::Key << "scale" << YAML::Value << s.object.scale;
   if (s.object.refine > 0) e << YAML::Key << "refine" << YAML::Value << s.object.refine;
   if (s.object.fracture_pieces > 0)
