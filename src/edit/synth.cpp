@@ -321,7 +321,9 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     if (o.motion == "swing") {
       // Yaw (up to 80 degrees, nearly edge-on) about the vertical axis through the middle of
       // the held edge, and a sideways sway.
-      const double yaw = (80.0 * pi / 180.0) * ramp(t) * std::sin(2 * pi * 0.9 * t);
+      const double amplitude = o.amplitude_deg > 0.0 ? o.amplitude_deg : 80.0;
+      const double frequency = o.frequency_hz > 0.0 ? o.frequency_hz : 0.9;
+      const double yaw = (amplitude * pi / 180.0) * ramp(t) * std::sin(2 * pi * frequency * t);
       R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
       p.x() += 0.10 * ramp(t) * std::sin(2 * pi * 0.3 * t);
     } else if (o.motion == "wave") {
@@ -336,7 +338,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
       const double s = std::min(t, T) / T;
       const double e = s * s * (3 - 2 * s);
       p.x() += -0.15 + 0.30 * (t < T ? s : 1.0) * (1.0 - 0.0 * e);
-      const double yaw = (20.0 * pi / 180.0) * (t < T ? std::sin(pi * s) : 0.0);
+      const double amplitude = o.amplitude_deg > 0.0 ? o.amplitude_deg : 20.0;
+      const double yaw = (amplitude * pi / 180.0) * (t < T ? std::sin(pi * s) : 0.0);
       R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
     } else if (o.motion == "bounce") {
       // A ball rolling to the right and bouncing on the ground line (rigid motion).

@@ -50,6 +50,11 @@ struct SynthOptions {
   std::string motion = "swing";  ///< swing | wave | stop | bounce | orbit | still
   int frames = 90;
   double fps = 30.0;
+  /// Peak turn of the swing (yaw about the held edge, default 80) or stop (yaw during the move,
+  /// default 20) motions, degrees; 0 = the motion's default.
+  double amplitude_deg = 0.0;
+  /// Turns per second of the swing motion (default 0.9); 0 = the default.
+  double frequency_hz = 0.0;
   int width = 640;
   int height = 480;
   int supersample = 3;
