@@ -44,6 +44,7 @@ int run_synth(const std::vector<std::string>& argv) {
         "options:\n"
         "  --shape S        board (default) | figurine | ball | statue (fractured, needs Bullet)\n"
         "  --motion M       swing (default) | wave | stop | bounce | orbit | still\n"
+        "  --engine E       mass_spring | bullet (default: mass_spring, bullet for the statue)\n"
         "  --frames N       number of frames (default 90)\n"
         "  --fps F          frame rate (default 30)\n"
         "  --size WxH       image size (default 640x480)\n"
@@ -56,6 +57,7 @@ int run_synth(const std::vector<std::string>& argv) {
   SynthOptions o;
   o.shape = args.value("--shape", {}, o.shape);
   o.motion = args.value("--motion", {}, o.motion);
+  o.engine = args.value("--engine", {}, o.engine);
   o.frames = parse_int(args.value("--frames", {}, "90"), "--frames");
   const std::string fps = args.value("--fps", {}, "30");
   try {
