@@ -154,8 +154,9 @@ struct Params {
 /// Exact replay: every step() starts from a normalized world (all objects removed and re-added
 /// in a fixed order, broadphase reset, so no pair or contact manifold survives from an earlier
 /// step) and a rebuilt node tree, so the result of a step is a function of the saved state and
-/// the step's inputs alone. save() copies the node states (x, q, v, f, normals) or body
-/// transforms and velocities; clone() rebuilds the world from the same recipe and restores.
+/// the step's inputs alone. save() copies the node states (x, q, v, f, normals; for a single
+/// sheet also the anchors' positions) or body transforms and velocities; clone() rebuilds the
+/// world from the same recipe (sharing a single sheet's attachments) and restores.
 class BulletSimulator final : public Simulator {
  public:
   /// @param mesh       topology (triangles); its vertices are not used
