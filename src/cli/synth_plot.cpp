@@ -44,6 +44,7 @@ int run_synth(const std::vector<std::string>& argv) {
         "options:\n"
         "  --shape S        board (default) | figurine | ball | statue (fractured, needs Bullet)\n"
         "  --motion M       swing (default) | wave | stop | bounce | orbit | still\n"
+        "  --engine E       mass_spring | bullet (default: mass_spring, bullet for the statue)\n"
         "  --amplitude DEG  peak turn of swing (default 80) or stop (default 20)\n"
         "  --frequency HZ   turns per second of swing (default 0.9)\n"
         "  --frames N       number of frames (default 90)\n"
@@ -58,6 +59,7 @@ int run_synth(const std::vector<std::string>& argv) {
   SynthOptions o;
   o.shape = args.value("--shape", {}, o.shape);
   o.motion = args.value("--motion", {}, o.motion);
+  o.engine = args.value("--engine", {}, o.engine);
   o.frames = parse_int(args.value("--frames", {}, "90"), "--frames");
   auto positive = [&](const char* flag, const std::string& text) {
     try {
