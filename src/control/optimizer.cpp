@@ -364,6 +364,12 @@ class WindowProblem {
     if (adjoint) {
       Eigen::VectorXd gs = Eigen::VectorXd::Zero(m_sim.state_dim());
       for (int k = m_frames - 1; k >= 0; --k) {
+        // position_cotangent() is taken at the state after frame k: the simulator is there
+        // after the forward pass for the last frame; step_vjp() leaves it elsewhere.
+        if (k + 1 < m_frames)
+          m_sim.restore(states[static_cast<size_t>(k + 1)]);
+        else if (reuse_zero)
+          m_sim.restore(m_zero_first.state);
         gs += m_sim.position_cotangent(dx[static_cast<size_t>(k)]);
         StepVjp vjp =
             m_sim.step_vjp(states[static_cast<size_t>(k)], input(k, u[static_cast<size_t>(k)]), gs);
@@ -517,14 +523,14 @@ class LinearModel {
     for (int k = 0; k < frames; ++k) {
       const auto kk = static_cast<size_t>(k);
       ds = m_lin[kk]->jvp(ds, u[kk] - m_u_lin[kk]);
-      const Vertices x = m_x_lin[kk] + sim.position_tangent(ds);
+      const Vertices x = m_x_lin[kk] + m_lin[kk]->position_tangent(ds);
       energy += lc * m_problem.visibility(k, x, grad ? &gx[kk] : nullptr);
     }
     if (!grad) return energy;
     Eigen::VectorXd gs = Eigen::VectorXd::Zero(sim.state_dim());
     for (int k = frames - 1; k >= 0; --k) {
       const auto kk = static_cast<size_t>(k);
-      gs += sim.position_cotangent(gx[kk]);
+      gs += m_lin[kk]->position_cotangent(gx[kk]);
       StepVjp vjp = m_lin[kk]->vjp(gs);
       gu[kk] += lc * vjp.control;
       gs = std::move(vjp.state);

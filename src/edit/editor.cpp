@@ -415,9 +415,12 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   ControlOptimizer optimizer(mesh.triangles, mesh.interior, control_options(scene.control));
   const double dt = 1.0 / footage.fps();
 
-  Vertices anchor_rest(static_cast<Eigen::Index>(anchors.size()), 3);
-  for (size_t i = 0; i < anchors.size(); ++i)
-    anchor_rest.row(static_cast<Eigen::Index>(i)) = mesh.vertices.row(anchors[i]);
+  // The vertices the engine holds (it may hold others than those selected, e.g. the sheet
+  // nodes under selected vertices of a thin board's other face); they follow the input poses.
+  const std::vector<int> held = sim->anchors();
+  Vertices anchor_rest(static_cast<Eigen::Index>(held.size()), 3);
+  for (size_t i = 0; i < held.size(); ++i)
+    anchor_rest.row(static_cast<Eigen::Index>(i)) = mesh.vertices.row(held[i]);
 
   // Which triangles each input frame observes (cached: windows look ahead).
   RayScene input_scene(pose[static_cast<size_t>(first)].apply(mesh.vertices), mesh.triangles);

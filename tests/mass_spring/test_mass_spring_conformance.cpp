@@ -1,11 +1,14 @@
 // The shared adapter conformance suite on pbve::mass_spring: cloth, elastic and stiff.
 
 #include "mass_spring/meshes.hpp"
+#include "pbve/core/mesh.hpp"
+#include "pbve/edit/synth.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
 #include "pbve/testing/simulator_conformance.hpp"
 
 namespace {
 
+using pbve::Vertices;
 using pbve::mass_spring::MassSpringSimulator;
 using pbve::mass_spring::Material;
 using pbve::mass_spring::Params;
@@ -53,9 +56,27 @@ ConformanceCase solid_case(Material m, const char* name) {
   return c;
 }
 
+// A thin closed board simulated as one sheet (Params::single_sheet): anchors() are the sheet
+// nodes that carry the anchored corner, the other face and the rim follow the sheet.
+ConformanceCase board_case() {
+  ConformanceCase c;
+  c.fma_dt = fma_dt;
+  c.name = "thin_board";
+  c.make = [] {
+    const pbve::Mesh mesh = pbve::refine_mesh(pbve::make_box_mesh(0.2, 0.15, 0.01), 0.05);
+    std::vector<int> anchors;
+    for (int i = 0; i < mesh.num_vertices(); ++i)
+      if (mesh.vertices(i, 1) < 1e-9 && mesh.vertices(i, 0) < -0.09) anchors.push_back(i);
+    Vertices x = mesh.vertices;
+    x.col(2).array() += 1.0;
+    return std::make_unique<MassSpringSimulator>(mesh, x, anchors, tight(Material::cloth));
+  };
+  return c;
+}
+
 INSTANTIATE_TEST_SUITE_P(MassSpring, SimulatorConformance,
                          ::testing::Values(cloth_case(), solid_case(Material::elastic, "elastic"),
-                                           solid_case(Material::stiff, "stiff")),
+                                           solid_case(Material::stiff, "stiff"), board_case()),
                          pbve::testing::case_name);
 
 }  // namespace

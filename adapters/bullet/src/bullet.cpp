@@ -22,7 +22,7 @@
 #include <Eigen/LU>
 #include <Eigen/SVD>
 
-#include "thin_sheet.hpp"
+#include "pbve/core/thin_sheet.hpp"
 
 static_assert(sizeof(btScalar) == sizeof(double),
               "pbve::bullet expects Bullet built in double precision (bullet-float64)");
@@ -184,7 +184,7 @@ struct BulletSimulator::Impl {
   int layer_ties = 0;           // links between the layers of a thin closed cloth
   // A thin closed cloth simulated as one sheet (Params::single_sheet); null otherwise. Shared
   // by clones (it only depends on the recipe).
-  std::shared_ptr<const detail::ThinSheet> sheet;
+  std::shared_ptr<const ThinSheet> sheet;
   std::vector<int> node_vertex;  // per Bullet node: its vertex (the identity without a sheet)
   std::vector<int> vertex_node;  // per vertex: its Bullet node, -1 when attached to the sheet
   Eigen::VectorXd carried_mass;  // per Bullet node: its own mass and its attached vertices' share
@@ -362,8 +362,8 @@ void BulletSimulator::Impl::build_soft(const Impl* like) {
   if (like) {
     sheet = like->sheet;
   } else if (p.material == Material::cloth && p.single_sheet != 0 && reach > 0.0) {
-    if (auto s = detail::make_thin_sheet(x, t, reach))
-      sheet = std::make_shared<const detail::ThinSheet>(std::move(*s));
+    if (auto s = make_thin_sheet(x, t, reach))
+      sheet = std::make_shared<const ThinSheet>(std::move(*s));
   }
   if (sheet) {
     node_vertex = sheet->node_vertex;
@@ -393,7 +393,7 @@ void BulletSimulator::Impl::build_soft(const Impl* like) {
   if (sheet) {
     for (int v = 0; v < n; ++v) {
       if (vertex_node[static_cast<size_t>(v)] >= 0) continue;
-      const detail::SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
+      const SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
       for (int k = 0; k < 3; ++k) {
         const int node = nt(a.triangle, k);
         carried_mass(node) += a.bary[k] * vertex_mass(v);
@@ -691,12 +691,12 @@ Vertices BulletSimulator::Impl::positions() const {
       out.row(node_vertex[static_cast<size_t>(i)]) = x.row(i);
     if (sheet) {
       // Attached vertices at their rest offsets from the sheet, anchored ones at their targets.
-      const Vertices normals = detail::sheet_normals(*sheet, x);
+      const Vertices normals = sheet_normals(*sheet, x);
       for (int v = 0; v < num_vertices; ++v)
         if (vertex_node[static_cast<size_t>(v)] < 0)
-          out.row(v) = detail::attached_position(*sheet, sheet->attachment[static_cast<size_t>(v)],
-                                                 x, normals)
-                           .transpose();
+          out.row(v) =
+              attached_position(*sheet, sheet->attachment[static_cast<size_t>(v)], x, normals)
+                  .transpose();
       for (size_t i = 0; i < recipe->anchors.size(); ++i)
         if (vertex_node[static_cast<size_t>(recipe->anchors[i])] < 0)
           out.row(recipe->anchors[i]) = anchor_pos.row(static_cast<Eigen::Index>(i));
@@ -728,7 +728,7 @@ Vertices BulletSimulator::Impl::velocities() const {
     if (sheet)
       for (int v = 0; v < num_vertices; ++v) {
         if (vertex_node[static_cast<size_t>(v)] >= 0) continue;
-        const detail::SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
+        const SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
         Vector3d vel = Vector3d::Zero();
         for (int k = 0; k < 3; ++k)
           vel += a.bary[k] * to_eigen(soft->m_nodes[sheet->triangles(a.triangle, k)].m_v);
@@ -800,7 +800,7 @@ void BulletSimulator::Impl::step(const StepInput& in) {
           node_force[static_cast<size_t>(node)] += f;
           continue;
         }
-        const detail::SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
+        const SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
         for (int c = 0; c < 3; ++c)
           node_force[static_cast<size_t>(sheet->triangles(a.triangle, c))] += f * a.bary[c];
       }

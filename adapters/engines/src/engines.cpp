@@ -96,6 +96,8 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
       int_field = &p.direct_solver_max_dofs;
     else if (key == "direct_solver_max_dofs_layered")
       int_field = &p.direct_solver_max_dofs_layered;
+    else if (key == "single_sheet")
+      int_field = &p.single_sheet;
     store_parameter(r, "mass_spring", key, line, value, field, int_field);
   }
   try {
@@ -212,7 +214,8 @@ std::vector<std::string> engine_parameters(const std::string& engine) {
             "newton_iterations",
             "newton_tolerance",
             "direct_solver_max_dofs",
-            "direct_solver_max_dofs_layered"};
+            "direct_solver_max_dofs_layered",
+            "single_sheet"};
   if (engine == "bullet")
     return {"density",         "linear_stiffness", "bending_stiffness", "layer_stiffness",
             "layer_distance",  "shape_matching",   "volume_stiffness",  "pressure",

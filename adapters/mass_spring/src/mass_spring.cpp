@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <numeric>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -14,6 +16,7 @@
 
 #include "factor.hpp"
 #include "model.hpp"
+#include "pbve/core/thin_sheet.hpp"
 
 namespace pbve::mass_spring {
 
@@ -52,6 +55,90 @@ struct Lag {
 
 struct MassSpringSimulator::Impl {
   std::shared_ptr<const Model> model;
+  // A thin closed cloth simulated as one sheet (Params::single_sheet): the model's nodes are the
+  // sheet's nodes, the other surface vertices follow it; null otherwise.
+  std::shared_ptr<const ThinSheet> sheet;
+  Params user_params;             // as given (the sheet model carries the whole board's mass)
+  std::vector<int> vertex_block;  // per surface vertex: the node that moves it most
+
+  int num_vertices() const {
+    return sheet ? static_cast<int>(sheet->vertex_node.size()) : model->num_surface;
+  }
+  // Node positions (#surface nodes by 3) from a 3N vector.
+  Vertices sheet_nodes(const VectorXd& xn) const {
+    return Eigen::Map<const Vertices>(xn.data(), model->num_surface, 3);
+  }
+  // Surface vertex positions (#V by 3) at node positions xn (3N).
+  Vertices surface_positions(const VectorXd& xn) const {
+    const Vertices nodes = sheet_nodes(xn);
+    if (!sheet) return nodes;
+    const Vertices normals = sheet_normals(*sheet, nodes);
+    Vertices out(num_vertices(), 3);
+    for (int v = 0; v < num_vertices(); ++v) {
+      const int node = sheet->vertex_node[static_cast<size_t>(v)];
+      out.row(v) = node >= 0 ? Eigen::RowVector3d(nodes.row(node))
+                             : attached_position(*sheet, sheet->attachment[static_cast<size_t>(v)],
+                                                 nodes, normals)
+                                   .transpose();
+    }
+    return out;
+  }
+  // Tangent of the surface positions along a tangent dxn of the node positions (3N), at xn.
+  Vertices surface_tangent(const VectorXd& xn, const VectorXd& dxn) const {
+    const Vertices dn = sheet_nodes(dxn);
+    if (!sheet) return dn;
+    const Vertices nodes = sheet_nodes(xn);
+    Vertices out(num_vertices(), 3);
+    std::vector<int> involved;
+    Eigen::Matrix<double, 3, Eigen::Dynamic> jac;
+    for (int v = 0; v < num_vertices(); ++v) {
+      const int node = sheet->vertex_node[static_cast<size_t>(v)];
+      if (node >= 0) {
+        out.row(v) = dn.row(node);
+        continue;
+      }
+      attached_position_jacobian(*sheet, sheet->attachment[static_cast<size_t>(v)], nodes, involved,
+                                 jac);
+      Vector3d t = Vector3d::Zero();
+      for (size_t i = 0; i < involved.size(); ++i)
+        t += jac.middleCols<3>(3 * static_cast<Eigen::Index>(i)) * dn.row(involved[i]).transpose();
+      out.row(v) = t.transpose();
+    }
+    return out;
+  }
+  // The transpose: a cotangent d (#V by 3) of the surface positions as a 3N node cotangent.
+  VectorXd surface_cotangent(const VectorXd& xn, const Vertices& d) const {
+    VectorXd out = VectorXd::Zero(3 * N());
+    if (!sheet) {
+      for (int i = 0; i < model->num_surface; ++i) out.segment<3>(3 * i) = d.row(i).transpose();
+      return out;
+    }
+    const Vertices nodes = sheet_nodes(xn);
+    std::vector<int> involved;
+    Eigen::Matrix<double, 3, Eigen::Dynamic> jac;
+    for (int v = 0; v < num_vertices(); ++v) {
+      const int node = sheet->vertex_node[static_cast<size_t>(v)];
+      if (node >= 0) {
+        out.segment<3>(3 * node) += d.row(v).transpose();
+        continue;
+      }
+      attached_position_jacobian(*sheet, sheet->attachment[static_cast<size_t>(v)], nodes, involved,
+                                 jac);
+      for (size_t i = 0; i < involved.size(); ++i)
+        out.segment<3>(3 * involved[i]) +=
+            jac.middleCols<3>(3 * static_cast<Eigen::Index>(i)).transpose() * d.row(v).transpose();
+    }
+    return out;
+  }
+  // Per-node rows (#surface nodes) spread to the surface vertices (zero on attached ones).
+  template <class M>
+  M scatter_rows(const M& per_node) const {
+    if (!sheet) return per_node;
+    M out = M::Zero(num_vertices(), per_node.cols());
+    for (size_t i = 0; i < sheet->node_vertex.size(); ++i)
+      out.row(sheet->node_vertex[i]) = per_node.row(static_cast<Eigen::Index>(i));
+    return out;
+  }
   VectorXd x, v;              // 3N positions (m) and velocities (m/s)
   Vertices phys;              // #V by 3, last step's averaged physical forces
   Eigen::VectorXd phys_norm;  // #V, last step's averaged |m g| + |other physical forces|
@@ -508,7 +595,10 @@ struct MassSpringSimulator::Impl {
     if (in.anchor_targets.rows() != 0 && in.anchor_targets.rows() != na)
       throw std::invalid_argument("mass_spring: anchor_targets has " +
                                   std::to_string(in.anchor_targets.rows()) + " rows, expected " +
-                                  std::to_string(na) + " (one per anchor) or 0");
+                                  std::to_string(na) +
+                                  (sheet ? " (one per anchors() vertex: the sheet nodes that "
+                                           "carry the anchored vertices) or 0"
+                                         : " (one per anchor) or 0"));
     if (in.anchor_targets.rows() != 0 && !in.anchor_targets.allFinite())
       throw std::invalid_argument("mass_spring: anchor_targets contain non-finite values");
   }
@@ -838,6 +928,22 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
     return out;
   }
 
+  Vertices position_tangent(const VectorXd& d_state_after) const override {
+    check_size(d_state_after, 6 * m_sim.N(), "d_state_after");
+    if (d_state_after.size() == 0) return Vertices::Zero(m_sim.num_vertices(), 3);
+    return m_sim.surface_tangent(m_sim.tape.xs.back(), d_state_after.head(3 * m_sim.N()));
+  }
+
+  VectorXd position_cotangent(const Vertices& d_positions_after) const override {
+    if (d_positions_after.rows() != m_sim.num_vertices())
+      throw std::invalid_argument("mass_spring: linearization position_cotangent expects " +
+                                  std::to_string(m_sim.num_vertices()) + " rows, got " +
+                                  std::to_string(d_positions_after.rows()));
+    VectorXd out = VectorXd::Zero(6 * m_sim.N());
+    out.head(3 * m_sim.N()) = m_sim.surface_cotangent(m_sim.tape.xs.back(), d_positions_after);
+    return out;
+  }
+
   StepVjp vjp(const VectorXd& d_state_after) override {
     const Model& m = *m_sim.model;
     const int S = m_sim.P().substeps, n3 = 3 * m_sim.N();
@@ -897,8 +1003,56 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
 MassSpringSimulator::MassSpringSimulator(const Mesh& mesh, const Vertices& positions,
                                          std::vector<int> anchors, const Params& params)
     : m_impl(std::make_unique<Impl>()) {
-  m_impl->model = std::make_shared<const detail::Model>(
-      detail::build_model(mesh, positions, std::move(anchors), params));
+  m_impl->user_params = params;
+  std::optional<ThinSheet> sheet;
+  if (params.material == Material::cloth && params.single_sheet != 0)
+    sheet = detail::thin_sheet_of(mesh, positions, anchors, params);
+  if (sheet) {
+    // The model is the sheet: its nodes, its triangles, the whole surface's mass, and the
+    // nodes that carry the anchored vertices held.
+    const auto nn = static_cast<Eigen::Index>(sheet->node_vertex.size());
+    Mesh sheet_mesh;
+    sheet_mesh.triangles = sheet->triangles;
+    Vertices nodes(nn, 3);
+    for (Eigen::Index i = 0; i < nn; ++i)
+      nodes.row(i) = positions.row(sheet->node_vertex[static_cast<size_t>(i)]);
+    std::vector<int> held;
+    for (int a : anchors) {
+      const int node = sheet->vertex_node[static_cast<size_t>(a)];
+      if (node >= 0) {
+        held.push_back(node);
+        continue;
+      }
+      const SheetAttachment& at = sheet->attachment[static_cast<size_t>(a)];
+      for (int k = 0; k < 3; ++k)
+        if (at.bary[k] > 1e-6) held.push_back(sheet->triangles(at.triangle, k));
+    }
+    std::sort(held.begin(), held.end());
+    held.erase(std::unique(held.begin(), held.end()), held.end());
+    Params sp = params;
+    sp.layer_stiffness = 0.0;
+    sp.density *= detail::surface_area(positions, mesh.triangles) /
+                  detail::surface_area(nodes, sheet->triangles);
+    m_impl->model = std::make_shared<const detail::Model>(
+        detail::build_model(sheet_mesh, nodes, std::move(held), sp));
+    m_impl->vertex_block.resize(sheet->vertex_node.size());
+    for (size_t v = 0; v < sheet->vertex_node.size(); ++v) {
+      int block = sheet->vertex_node[v];
+      if (block < 0) {
+        const SheetAttachment& at = sheet->attachment[v];
+        Eigen::Index k = 0;
+        at.bary.maxCoeff(&k);
+        block = sheet->triangles(at.triangle, k);
+      }
+      m_impl->vertex_block[v] = block;
+    }
+    m_impl->sheet = std::make_shared<const ThinSheet>(std::move(*sheet));
+  } else {
+    m_impl->model = std::make_shared<const detail::Model>(
+        detail::build_model(mesh, positions, std::move(anchors), params));
+    m_impl->vertex_block.resize(static_cast<size_t>(m_impl->model->num_surface));
+    std::iota(m_impl->vertex_block.begin(), m_impl->vertex_block.end(), 0);
+  }
   m_impl->x = m_impl->model->rest;
   m_impl->v = VectorXd::Zero(m_impl->x.size());
   m_impl->phys = Vertices::Zero(m_impl->model->num_surface, 3);
@@ -920,29 +1074,35 @@ MassSpringSimulator& MassSpringSimulator::operator=(const MassSpringSimulator& o
 MassSpringSimulator::~MassSpringSimulator() = default;
 
 int MassSpringSimulator::num_vertices() const {
-  return m_impl->model->num_surface;
+  return m_impl->num_vertices();
 }
 
 Vertices MassSpringSimulator::positions() const {
-  return Eigen::Map<const Vertices>(m_impl->x.data(), num_vertices(), 3);
+  return m_impl->surface_positions(m_impl->x);
 }
 
 Vertices MassSpringSimulator::velocities() const {
-  return Eigen::Map<const Vertices>(m_impl->v.data(), num_vertices(), 3);
+  // Attached vertices of a sheet: the tangent of their position along the node velocities.
+  return m_impl->surface_tangent(m_impl->x, m_impl->v);
 }
 
 ControlLayout MassSpringSimulator::control_layout() const {
+  // One force per node (per surface vertex without a sheet; per sheet node with one, a force
+  // on an attached vertex being one on the node that carries it most).
   ControlLayout l;
   l.space = ControlSpace::vertex_force;
-  l.num_blocks = num_vertices();
-  l.block_mass = m_impl->model->mass.head(num_vertices());
-  l.vertex_block.resize(static_cast<size_t>(num_vertices()));
-  for (int i = 0; i < num_vertices(); ++i) l.vertex_block[static_cast<size_t>(i)] = i;
+  l.num_blocks = m_impl->model->num_surface;
+  l.block_mass = m_impl->model->mass.head(l.num_blocks);
+  l.vertex_block = m_impl->vertex_block;
   return l;
 }
 
 std::vector<int> MassSpringSimulator::anchors() const {
-  return m_impl->model->anchors;
+  if (!m_impl->sheet) return m_impl->model->anchors;
+  std::vector<int> out;
+  for (int node : m_impl->model->anchors)
+    out.push_back(m_impl->sheet->node_vertex[static_cast<size_t>(node)]);
+  return out;
 }
 
 void MassSpringSimulator::step(const StepInput& in) {
@@ -950,11 +1110,11 @@ void MassSpringSimulator::step(const StepInput& in) {
 }
 
 Vertices MassSpringSimulator::physical_forces() const {
-  return m_impl->phys;
+  return m_impl->scatter_rows(m_impl->phys);
 }
 
 Eigen::VectorXd MassSpringSimulator::physical_force_magnitudes() const {
-  return m_impl->phys_norm;
+  return m_impl->scatter_rows(m_impl->phys_norm);
 }
 
 SimState MassSpringSimulator::save() const {
@@ -992,7 +1152,7 @@ Eigen::VectorXd MassSpringSimulator::position_cotangent(const Vertices& d_positi
                                 std::to_string(d_positions.rows()) + " by " +
                                 std::to_string(d_positions.cols()));
   VectorXd g = VectorXd::Zero(state_dim());
-  for (int i = 0; i < num_vertices(); ++i) g.segment<3>(3 * i) = d_positions.row(i).transpose();
+  g.head(3 * m_impl->N()) = m_impl->surface_cotangent(m_impl->x, d_positions);
   return g;
 }
 
@@ -1001,7 +1161,7 @@ Vertices MassSpringSimulator::position_tangent(const Eigen::VectorXd& d_state) c
     throw std::invalid_argument("mass_spring: position_tangent expects " +
                                 std::to_string(state_dim()) + " entries, got " +
                                 std::to_string(d_state.size()));
-  return Eigen::Map<const Vertices>(d_state.data(), num_vertices(), 3);
+  return m_impl->surface_tangent(m_impl->x, d_state.head(3 * m_impl->N()));
 }
 
 StepVjp MassSpringSimulator::step_vjp(const SimState& before, const StepInput& in,
@@ -1047,7 +1207,11 @@ int MassSpringSimulator::num_springs() const {
 }
 
 const Params& MassSpringSimulator::params() const {
-  return m_impl->model->params;
+  return m_impl->user_params;
+}
+
+bool MassSpringSimulator::single_sheet() const {
+  return m_impl->sheet != nullptr;
 }
 
 const StepStats& MassSpringSimulator::last_stats() const {

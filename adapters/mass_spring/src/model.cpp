@@ -81,6 +81,39 @@ void add_layer_ties(const Vertices& x, const Triangles& t, const Eigen::VectorXd
 
 }  // namespace
 
+double surface_area(const Vertices& positions, const Triangles& triangles) {
+  double area = 0.0;
+  for (Eigen::Index f = 0; f < triangles.rows(); ++f) {
+    const Vector3d a = row(positions, triangles(f, 0));
+    area += 0.5 *
+            (row(positions, triangles(f, 1)) - a).cross(row(positions, triangles(f, 2)) - a).norm();
+  }
+  return area;
+}
+
+std::optional<ThinSheet> thin_sheet_of(const Mesh& mesh, const Vertices& positions,
+                                       const std::vector<int>& anchors, const Params& params) {
+  const auto nv = positions.rows();
+  const Triangles& t = mesh.triangles;
+  if (nv == 0 || t.rows() == 0 || (mesh.num_vertices() != 0 && mesh.num_vertices() != nv) ||
+      !positions.allFinite() || (t.size() > 0 && (t.minCoeff() < 0 || t.maxCoeff() >= nv)))
+    return std::nullopt;
+  std::vector<int> sorted = anchors;
+  std::sort(sorted.begin(), sorted.end());
+  if (std::adjacent_find(sorted.begin(), sorted.end()) != sorted.end() ||
+      (!sorted.empty() && (sorted.front() < 0 || sorted.back() >= nv)))
+    return std::nullopt;
+  double reach = params.layer_distance;
+  if (!(reach > 0.0)) {
+    const std::vector<EdgeInfo> edges = collect_edges(t, Eigen::VectorXd::Zero(t.rows()));
+    double total = 0.0;
+    for (const EdgeInfo& e : edges) total += (row(positions, e.b) - row(positions, e.a)).norm();
+    reach = edges.empty() ? 0.0 : total / static_cast<double>(edges.size());
+  }
+  if (!(reach > 0.0)) return std::nullopt;
+  return make_thin_sheet(positions, t, reach);
+}
+
 Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> anchors,
                   const Params& params) {
   params.validate();

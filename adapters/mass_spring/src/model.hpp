@@ -3,12 +3,14 @@
 // sparsity pattern of the free-free system matrix (shared between clones).
 
 #include <array>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 
 #include "pbve/core/mesh.hpp"
+#include "pbve/core/thin_sheet.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
 
 namespace pbve::mass_spring::detail {
@@ -40,6 +42,13 @@ struct Model {
   std::vector<std::array<int, 3>> diag_offset;
   std::vector<std::array<int, 6>> spring_offset;
 };
+
+/// The sheet of a thin closed cloth (Params::single_sheet), or nothing when the surface does not
+/// split into one layer and the rest, or the input is invalid (build_model() reports that).
+std::optional<ThinSheet> thin_sheet_of(const Mesh& mesh, const Vertices& positions,
+                                       const std::vector<int>& anchors, const Params& params);
+/// Total triangle area, m^2.
+double surface_area(const Vertices& positions, const Triangles& triangles);
 
 /// Builds the model; throws std::invalid_argument on bad input.
 Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> anchors,

@@ -76,6 +76,7 @@ void Params::validate() const {
   non_negative(bend_stiffness, "bend_stiffness");
   non_negative(layer_stiffness, "layer_stiffness");
   non_negative(layer_distance, "layer_distance");
+  if (single_sheet != 0 && single_sheet != 1) bad("single_sheet", "0 or 1", single_sheet);
   if (material != Material::cloth) positive(volume_stiffness, "volume_stiffness");
   non_negative(lattice_spacing, "lattice_spacing");
   non_negative(damping_alpha, "damping_alpha");

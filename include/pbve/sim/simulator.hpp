@@ -81,6 +81,11 @@ class StepLinearization {
                               const Eigen::VectorXd& d_control) = 0;
   /// The transpose: given g = dL/ds1, dL/ds0 and dL/du (what Simulator::step_vjp() returns).
   virtual StepVjp vjp(const Eigen::VectorXd& d_state_after) = 0;
+  /// Simulator::position_tangent() at the state after the step: the tangent of the surface
+  /// positions (#V by 3) along a tangent of that state (empty for zero).
+  virtual Vertices position_tangent(const Eigen::VectorXd& d_state_after) const = 0;
+  /// Simulator::position_cotangent() at the state after the step (its transpose).
+  virtual Eigen::VectorXd position_cotangent(const Vertices& d_positions_after) const = 0;
 };
 
 /// The abstract physics engine interface.
@@ -149,10 +154,11 @@ class Simulator {
   /// of all nodes).
   virtual int state_dim() const;
   /// The state cotangent corresponding to a cotangent on positions() (#V by 3): for
-  /// L(positions(state)), returns dL/dstate given dL/dpositions.
+  /// L(positions(state)), returns dL/dstate given dL/dpositions, at the current state (the map
+  /// from state to positions may be nonlinear, e.g. surface vertices that follow a sheet).
   virtual Eigen::VectorXd position_cotangent(const Vertices& d_positions) const;
   /// The transpose of position_cotangent(): the tangent of positions() (#V by 3) along a state
-  /// tangent d_state (state_dim() entries), e.g. one from StepLinearization::jvp().
+  /// tangent d_state (state_dim() entries) at the current state.
   virtual Vertices position_tangent(const Eigen::VectorXd& d_state) const;
   /// Vector-Jacobian product of one step: the step taken from `before` with `in` maps state
   /// s0 to s1; given g = dL/ds1, returns dL/ds0 and dL/du. Leaves this simulator in an

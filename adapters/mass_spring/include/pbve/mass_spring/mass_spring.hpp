@@ -88,6 +88,14 @@ struct Params {
   double layer_stiffness = 100.0;
   /// Cloth: largest distance between tied layers, metres; 0 uses the mean rest edge length.
   double layer_distance = 0.0;
+  /// Cloth: simulate a thin closed surface (a board: two layers within layer_distance joined
+  /// by a rim, pbve::make_thin_sheet()) as one sheet, 1 (default), or as two tied layers, 0.
+  /// The sheet's nodes are the vertices of one layer; the other layer and the rim follow it at
+  /// their rest offsets in a frame that turns with it (pbve::attached_position()), so the
+  /// layers cannot pass through each other. The sheet carries the whole surface's mass (its
+  /// density is scaled by surface area / sheet area); anchoring a vertex that follows the
+  /// sheet anchors the nodes that carry it. Surfaces that do not split so use the layer ties.
+  int single_sheet = 1;
   /// Solids: Young's-modulus-like stiffness of the interior lattice and of the ties between
   /// surface vertices and the lattice, Pa. Unused for cloth.
   double volume_stiffness = 0.0;
@@ -150,7 +158,10 @@ struct StepStats {
 };
 
 /// The built-in engine. Nodes are the surface vertices (first, in input-mesh order) followed by
-/// interior lattice nodes (solids). The state vector of the derivative API is
+/// interior lattice nodes (solids); for a thin closed cloth simulated as one sheet they are the
+/// sheet's nodes (its vertices in ascending order), control blocks are per node
+/// (ControlLayout::vertex_block maps every surface vertex to the node that carries it most) and
+/// anchors() are the nodes' vertices. The state vector of the derivative API is
 /// [x (3 * num_nodes()), v (3 * num_nodes())], node-major, x y z per node.
 class MassSpringSimulator final : public Simulator {
  public:
@@ -202,8 +213,10 @@ class MassSpringSimulator final : public Simulator {
   std::unique_ptr<StepLinearization> linearize_step(const SimState& before,
                                                     const StepInput& in) override;
 
-  /// Surface vertices plus interior lattice nodes.
+  /// Surface vertices plus interior lattice nodes (or, for a single sheet, the sheet nodes).
   int num_nodes() const;
+  /// The thin closed cloth is simulated as one sheet (Params::single_sheet).
+  bool single_sheet() const;
   /// All node positions, num_nodes() by 3, metres.
   Vertices node_positions() const;
   /// Lumped node masses, kg (size num_nodes()).

@@ -2,7 +2,8 @@
 // A thin closed cloth (a board made into cloth: two layers joined at a rim) as one sheet. The
 // triangles of one layer are the simulated sheet; every other vertex (the other layer, the
 // rim) is attached to the closest point of the sheet at rest and follows it at its rest offset,
-// expressed in a frame that turns with the sheet. Internal to pbve::bullet.
+// expressed in a frame that turns with the sheet. Used by the engines that simulate thin boards
+// as cloth (pbve::bullet, pbve::mass_spring).
 
 #include <optional>
 #include <vector>
@@ -11,7 +12,7 @@
 
 #include "pbve/core/mesh.hpp"
 
-namespace pbve::bullet::detail {
+namespace pbve {
 
 /// Where a vertex that is not a sheet node sits relative to the sheet.
 struct SheetAttachment {
@@ -27,6 +28,8 @@ struct ThinSheet {
   /// Per vertex; meaningful where vertex_node is -1.
   std::vector<SheetAttachment> attachment;
   double max_offset = 0.0;  ///< largest distance of an attached vertex from the sheet at rest, m
+  /// Per sheet node: the sheet triangles around it.
+  std::vector<std::vector<int>> node_triangles;
 };
 
 /// The sheet of a thin closed surface, or nothing when the surface does not split into one
@@ -44,4 +47,12 @@ Vertices sheet_normals(const ThinSheet& sheet, const Vertices& nodes);
 Eigen::Vector3d attached_position(const ThinSheet& sheet, const SheetAttachment& a,
                                   const Vertices& nodes, const Vertices& normals);
 
-}  // namespace pbve::bullet::detail
+/// attached_position() and its Jacobian with respect to the sheet nodes it depends on (those
+/// of the triangles around its triangle's nodes): `involved` receives their indices (sorted),
+/// `jacobian` the 3 x (3 * involved.size()) matrix d position / d node positions (node-major,
+/// x y z per node).
+Eigen::Vector3d attached_position_jacobian(const ThinSheet& sheet, const SheetAttachment& a,
+                                           const Vertices& nodes, std::vector<int>& involved,
+                                           Eigen::Matrix<double, 3, Eigen::Dynamic>& jacobian);
+
+}  // namespace pbve

@@ -1,4 +1,4 @@
-#include "thin_sheet.hpp"
+#include "pbve/core/thin_sheet.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -7,8 +7,9 @@
 #include <utility>
 
 #include <Eigen/Geometry>
+#include <unsupported/Eigen/AutoDiff>
 
-namespace pbve::bullet::detail {
+namespace pbve {
 
 namespace {
 
@@ -95,6 +96,69 @@ Vector3d attached_position(const ThinSheet& s, const SheetAttachment& a, const V
   Vector3d p;
   const Matrix3d f = frame(s, a, nodes, normals, &p);
   return p + f * a.local;
+}
+
+Eigen::Vector3d attached_position_jacobian(const ThinSheet& s, const SheetAttachment& a,
+                                           const Vertices& nodes, std::vector<int>& involved,
+                                           Eigen::Matrix<double, 3, Eigen::Dynamic>& jacobian) {
+  // The nodes of the triangles around the attachment triangle's nodes.
+  const auto t = static_cast<Eigen::Index>(a.triangle);
+  involved.clear();
+  for (int k = 0; k < 3; ++k)
+    for (int f : s.node_triangles[static_cast<size_t>(s.triangles(t, k))])
+      for (int c = 0; c < 3; ++c) involved.push_back(s.triangles(f, c));
+  std::sort(involved.begin(), involved.end());
+  involved.erase(std::unique(involved.begin(), involved.end()), involved.end());
+  const auto m = static_cast<Eigen::Index>(involved.size());
+  auto local = [&](int node) {
+    return static_cast<Eigen::Index>(std::lower_bound(involved.begin(), involved.end(), node) -
+                                     involved.begin());
+  };
+  // attached_position() in forward-mode automatic differentiation over those 3m coordinates.
+  using AD = Eigen::AutoDiffScalar<Eigen::VectorXd>;
+  using V3 = Eigen::Matrix<AD, 3, 1>;
+  std::vector<V3> x(static_cast<size_t>(m));
+  for (Eigen::Index i = 0; i < m; ++i)
+    for (int d = 0; d < 3; ++d)
+      x[static_cast<size_t>(i)][d] =
+          AD(nodes(involved[static_cast<size_t>(i)], d), 3 * m, 3 * i + d);
+  auto node_normal = [&](int node) {
+    V3 n = V3::Zero();
+    for (int f : s.node_triangles[static_cast<size_t>(node)]) {
+      const V3& p0 = x[static_cast<size_t>(local(s.triangles(f, 0)))];
+      const V3& p1 = x[static_cast<size_t>(local(s.triangles(f, 1)))];
+      const V3& p2 = x[static_cast<size_t>(local(s.triangles(f, 2)))];
+      n += (p1 - p0).cross(p2 - p0);
+    }
+    const AD len = n.norm();
+    if (len.value() > 0.0) n /= len;
+    return n;
+  };
+  V3 p = V3::Zero(), n = V3::Zero();
+  for (int k = 0; k < 3; ++k) {
+    const int node = s.triangles(t, k);
+    p += AD(a.bary[k]) * x[static_cast<size_t>(local(node))];
+    n += AD(a.bary[k]) * node_normal(node);
+  }
+  const AD nl = n.norm();
+  if (nl.value() > 0.0) n /= nl;
+  const V3 e = x[static_cast<size_t>(local(s.triangles(t, 1)))] -
+               x[static_cast<size_t>(local(s.triangles(t, 0)))];
+  V3 t1 = e - e.dot(n) * n;
+  const AD tl = t1.norm();
+  if (tl.value() > 0.0) t1 /= tl;
+  const V3 t2 = n.cross(t1);
+  const V3 q = p + AD(a.local[0]) * t1 + AD(a.local[1]) * t2 + AD(a.local[2]) * n;
+  jacobian.resize(3, 3 * m);
+  Vector3d out;
+  for (int d = 0; d < 3; ++d) {
+    out[d] = q[d].value();
+    if (q[d].derivatives().size() == 3 * m)
+      jacobian.row(d) = q[d].derivatives().transpose();
+    else
+      jacobian.row(d).setZero();
+  }
+  return out;
 }
 
 std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& triangles,
@@ -193,6 +257,11 @@ std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& 
       ++row;
     }
 
+  s.node_triangles.assign(s.node_vertex.size(), {});
+  for (Eigen::Index f = 0; f < s.triangles.rows(); ++f)
+    for (int k = 0; k < 3; ++k)
+      s.node_triangles[static_cast<size_t>(s.triangles(f, k))].push_back(static_cast<int>(f));
+
   // Attach every other vertex to its closest sheet point (first closest triangle in order).
   Vertices nodes(static_cast<Eigen::Index>(s.node_vertex.size()), 3);
   for (size_t i = 0; i < s.node_vertex.size(); ++i)
@@ -225,4 +294,4 @@ std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& 
   return s;
 }
 
-}  // namespace pbve::bullet::detail
+}  // namespace pbve
