@@ -3,11 +3,13 @@
 // sparsity pattern of the free-free system matrix (shared between clones).
 
 #include <array>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 
+#include "cholesky.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
 
@@ -39,6 +41,9 @@ struct Model {
   // (-1 when an end is anchored).
   std::vector<std::array<int, 3>> diag_offset;
   std::vector<std::array<int, 6>> spring_offset;
+  // Symbolic analysis of `pattern` for the sparse Cholesky factorizations, made on first use
+  // and shared by every clone.
+  std::shared_ptr<SharedCholeskyAnalysis> cholesky = std::make_shared<SharedCholeskyAnalysis>();
 };
 
 /// Builds the model; throws std::invalid_argument on bad input.
