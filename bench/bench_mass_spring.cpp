@@ -1,12 +1,22 @@
 // pbve::mass_spring: one step (dt 1/30 s, default substeps) of an anchored cloth at 484, ~1k,
-// 4k and 16k vertices, and one step_vjp relative to one step. For comparisons, environment
-// variables override parameters: SUBS (substeps), NTOL (newton_tolerance), ITER (any value:
-// block-Jacobi conjugate gradients instead of the automatic solver choice).
+// 4k and 16k vertices, and one step_vjp relative to one step; the same for the thin two-layer
+// board of example 1 (cloth with layer ties, 3 substeps, swung by its held edge) at 494, ~1k,
+// 4k and 16k vertices, plus its linearization (linearize_step, jvp, vjp). For comparisons,
+// environment variables override parameters: SUBS (substeps), NTOL (newton_tolerance), SOLVER
+// (direct or iterative instead of the automatic linear solver choice).
 
+#include <cmath>
 #include <cstdlib>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
 
 #include <benchmark/benchmark.h>
 
+#include "pbve/core/mesh.hpp"
+#include "pbve/edit/synth.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
 
 namespace {
@@ -14,6 +24,14 @@ namespace {
 using pbve::mass_spring::MassSpringSimulator;
 using pbve::mass_spring::Material;
 using pbve::mass_spring::Params;
+
+void set_solver(Params& prm) {
+  if (const char* s = std::getenv("SOLVER")) {
+    const std::string name = s;
+    if (name == "direct") prm.linear_solver = pbve::mass_spring::LinearSolver::direct;
+    if (name == "iterative") prm.linear_solver = pbve::mass_spring::LinearSolver::iterative;
+  }
+}
 
 // n x n cloth of 1 m x 1 m, horizontal (x-z plane), held at two corners; gravity +y.
 MassSpringSimulator make_cloth(int n) {
@@ -33,7 +51,7 @@ MassSpringSimulator make_cloth(int n) {
   Params prm = Params::preset(Material::cloth);
   if (std::getenv("NTOL")) prm.newton_tolerance = std::atof(std::getenv("NTOL"));
   if (std::getenv("SUBS")) prm.substeps = std::atoi(std::getenv("SUBS"));
-  if (std::getenv("ITER")) prm.linear_solver = pbve::mass_spring::LinearSolver::iterative;
+  set_solver(prm);
   MassSpringSimulator sim(m, {0, n - 1}, prm);
   // Start from a swinging state, not from rest.
   for (int s = 0; s < 5; ++s) sim.step(pbve::StepInput{});
@@ -91,9 +109,146 @@ void BM_ClothVjpReplay(benchmark::State& state) {
   state.counters["vertices"] = sim.num_vertices();
 }
 
+// Example 1's board: 40 x 30 x 1 cm, refined like `pbve bench` does (edge lengths shrinking by
+// 2^(1/8) from the longest edge; the one whose vertex count is closest to the target), the
+// middle 10 cm of its top edge held and turned about the vertical axis.
+struct Board {
+  std::unique_ptr<MassSpringSimulator> sim;
+  std::vector<int> anchors;
+  pbve::Mesh mesh;
+  int frame = 0;
+
+  pbve::StepInput input(int f) const {
+    pbve::StepInput in;
+    in.anchor_targets.resize(static_cast<Eigen::Index>(anchors.size()), 3);
+    const double yaw = 1.4 * std::sin(2 * 3.14159265358979 * 0.9 * f / 30.0);
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    for (size_t k = 0; k < anchors.size(); ++k)
+      in.anchor_targets.row(static_cast<Eigen::Index>(k)) =
+          (R * mesh.vertices.row(anchors[k]).transpose()).transpose();
+    in.control = Eigen::VectorXd::Constant(sim->control_layout().size(), 1e-5);
+    return in;
+  }
+};
+
+Board make_board(int target) {
+  const pbve::Mesh box = pbve::make_box_mesh(0.4, 0.3, 0.01);
+  double best = 0.05, len = pbve::max_edge_length(box);
+  int best_count = pbve::refine_mesh(box, best).num_vertices();
+  if (target > 0) {
+    best_count = box.num_vertices();
+    for (int k = 0; k < 200; ++k) {
+      len /= std::pow(2.0, 1.0 / 8.0);
+      const int count = pbve::refine_mesh(box, len).num_vertices();
+      if (std::abs(count - target) < std::abs(best_count - target)) {
+        best_count = count;
+        best = len;
+      }
+      if (count > 2 * target) break;
+    }
+  }
+  Board b;
+  b.mesh = pbve::refine_mesh(box, best);
+  for (int i = 0; i < b.mesh.num_vertices(); ++i)
+    if (std::abs(b.mesh.vertices(i, 1)) < 1e-9 && std::abs(b.mesh.vertices(i, 0)) <= 0.05)
+      b.anchors.push_back(i);
+  Params prm = Params::preset(Material::cloth);
+  prm.substeps = 3;
+  if (std::getenv("NTOL")) prm.newton_tolerance = std::atof(std::getenv("NTOL"));
+  if (std::getenv("SUBS")) prm.substeps = std::atoi(std::getenv("SUBS"));
+  set_solver(prm);
+  b.sim = std::make_unique<MassSpringSimulator>(b.mesh, b.anchors, prm);
+  b.anchors = b.sim->anchors();  // a single sheet holds the nodes carrying the held vertices
+  // Swing it for a few frames first (the turn is fastest at the start).
+  for (b.frame = 1; b.frame <= 4; ++b.frame) b.sim->step(b.input(b.frame));
+  return b;
+}
+
+void BM_BoardStep(benchmark::State& state) {
+  Board b = make_board(static_cast<int>(state.range(0)));
+  const pbve::SimState s0 = b.sim->save();
+  const pbve::StepInput in = b.input(b.frame);
+  double cg = 0, newton = 0, fact = 0;
+  for (auto _ : state) {
+    b.sim->restore(s0);
+    b.sim->step(in);
+    cg += b.sim->last_stats().cg_iterations;
+    newton += b.sim->last_stats().newton_iterations;
+    fact += b.sim->last_stats().factorizations;
+  }
+  state.counters["vertices"] = b.sim->num_vertices();
+  state.counters["cg_iters"] = benchmark::Counter(cg, benchmark::Counter::kAvgIterations);
+  state.counters["newton_iters"] = benchmark::Counter(newton, benchmark::Counter::kAvgIterations);
+  state.counters["factorizations"] = benchmark::Counter(fact, benchmark::Counter::kAvgIterations);
+}
+
+// step_vjp right after the step (trajectory reused).
+void BM_BoardVjp(benchmark::State& state) {
+  Board b = make_board(static_cast<int>(state.range(0)));
+  const pbve::SimState s0 = b.sim->save();
+  const pbve::StepInput in = b.input(b.frame);
+  b.sim->step(in);
+  const Eigen::VectorXd g =
+      b.sim->position_cotangent(pbve::Vertices::Ones(b.sim->num_vertices(), 3));
+  for (auto _ : state) benchmark::DoNotOptimize(b.sim->step_vjp(s0, in, g));
+  state.counters["vertices"] = b.sim->num_vertices();
+}
+
+// step_vjp from a state this simulator did not just step from (forward replay + backward).
+void BM_BoardVjpReplay(benchmark::State& state) {
+  Board b = make_board(static_cast<int>(state.range(0)));
+  const pbve::SimState s0 = b.sim->save();
+  const pbve::StepInput in = b.input(b.frame);
+  pbve::StepInput other = in;
+  other.control *= 2.0;
+  const Eigen::VectorXd g =
+      b.sim->position_cotangent(pbve::Vertices::Ones(b.sim->num_vertices(), 3));
+  for (auto _ : state) {
+    state.PauseTiming();
+    b.sim->restore(s0);
+    b.sim->step(other);  // invalidates the recorded trajectory
+    state.ResumeTiming();
+    benchmark::DoNotOptimize(b.sim->step_vjp(s0, in, g));
+  }
+  state.counters["vertices"] = b.sim->num_vertices();
+}
+
+// linearize_step right after the step (trajectory reused), without its products.
+void BM_BoardLinearize(benchmark::State& state) {
+  Board b = make_board(static_cast<int>(state.range(0)));
+  const pbve::SimState s0 = b.sim->save();
+  const pbve::StepInput in = b.input(b.frame);
+  b.sim->step(in);
+  for (auto _ : state) benchmark::DoNotOptimize(b.sim->linearize_step(s0, in));
+  state.counters["vertices"] = b.sim->num_vertices();
+}
+
+// One jvp() and one vjp() of a linearization (what the optimizer calls 20-80 times per frame).
+void BM_BoardLinearJvpVjp(benchmark::State& state) {
+  Board b = make_board(static_cast<int>(state.range(0)));
+  const pbve::SimState s0 = b.sim->save();
+  const pbve::StepInput in = b.input(b.frame);
+  const auto lin = b.sim->linearize_step(s0, in);
+  const Eigen::VectorXd du = Eigen::VectorXd::Constant(3 * b.sim->num_vertices(), 1e-3);
+  const Eigen::VectorXd g =
+      b.sim->position_cotangent(pbve::Vertices::Ones(b.sim->num_vertices(), 3));
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(lin->jvp(Eigen::VectorXd(), du));
+    benchmark::DoNotOptimize(lin->vjp(g));
+  }
+  state.counters["vertices"] = b.sim->num_vertices();
+}
+
 }  // namespace
 
 BENCHMARK(BM_ClothStep)->Arg(22)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_ClothVjp)->Arg(22)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ClothVjp)->Arg(22)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjpReplay)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
+// Board targets: 0 = example 1's own refinement (5 cm edges, 494 vertices); 1000, 4000, 16000
+// as in `pbve bench --vertices 1000,4000,16000` (838, 3 022 and 19 018 vertices).
+BENCHMARK(BM_BoardStep)->Arg(0)->Arg(1000)->Arg(4000)->Arg(16000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BoardVjp)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BoardVjpReplay)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BoardLinearize)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BoardLinearJvpVjp)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
 BENCHMARK_MAIN();

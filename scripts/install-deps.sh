@@ -7,6 +7,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git
   libeigen3-dev libnlopt-cxx-dev libnlopt-dev libopencv-dev libembree-dev libtbb-dev
   coinor-libipopt-dev libbullet-dev libyaml-cpp-dev
+  libsuitesparse-dev libopenblas-dev
   nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   ffmpeg

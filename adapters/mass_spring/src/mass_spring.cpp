@@ -11,9 +11,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <Eigen/LU>
-#include <Eigen/SparseCholesky>
-#include <Eigen/SparseLU>
 
+#include "cholesky.hpp"
 #include "factor.hpp"
 #include "model.hpp"
 #include "pbve/core/thin_sheet.hpp"
@@ -145,17 +144,17 @@ struct MassSpringSimulator::Impl {
   StepStats stats;
 
   Eigen::SparseMatrix<double> J;
-  // A sparse LDL^T factorization. Eigen's solvers are not copyable: a copy starts empty and
-  // analyzes the (shared) pattern again on first use.
+  // A sparse LL^T factorization (its symbolic analysis is the model's, shared by every
+  // clone). A copy starts without a factor.
   struct Solver {
-    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>, Eigen::Lower> ldlt;
-    bool analyzed = false;
+    detail::SparseCholesky chol;
     bool valid = false;  // holds the factorization of the matrix `key` describes
     VectorXd key;
     Solver() = default;
-    Solver(const Solver&) {}
-    Solver& operator=(const Solver&) {
-      analyzed = valid = false;
+    Solver(const Solver& other) : chol(other.chol) {}
+    Solver& operator=(const Solver& other) {
+      chol = other.chol;
+      valid = false;
       return *this;
     }
   };
@@ -174,6 +173,21 @@ struct MassSpringSimulator::Impl {
   static constexpr int max_reuse_iterations = 25;
   int last_reuse_iterations = 0;
   std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
+  // Adjoint solves of indefinite exact Hessians: LL^T, else LDL^T, else LU (a copy starts
+  // empty).
+  struct Fallback {
+    std::unique_ptr<detail::SymmetricFactor> factor;
+    Fallback() = default;
+    Fallback(const Fallback&) {}
+    Fallback& operator=(const Fallback&) {
+      factor.reset();
+      return *this;
+    }
+  } fallback;
+
+  std::shared_ptr<const detail::CholeskyAnalysis> analysis() const {
+    return model->cholesky->get(model->pattern);
+  }
 
   // Start of a step() or step_vjp() from `start` = [x; v]: keeps `base` if it was made for
   // this start.
@@ -459,8 +473,10 @@ struct MassSpringSimulator::Impl {
   // Solves J x = b (free rows) for the current (Newton) J. Direct mode: conjugate gradients
   // preconditioned by the active factorization; the first solve of a step without `base`
   // factorizes J into it, and a solve after a stalled one factorizes J into `work`. So a step
-  // costs about one factorization, none when `base` is reused. Iterative mode: block-Jacobi
-  // CG. Returns false if J could not be factorized or CG failed.
+  // costs about one factorization, none when `base` is reused. A new factorization runs the
+  // same CG as a reused one (converging at once), so a result does not depend on whether
+  // `base` was kept from an earlier call: replays and clones match bit for bit. Iterative
+  // mode: block-Jacobi CG. Returns false if J could not be factorized or CG failed.
   template <class Stop>
   bool linear_solve(const VectorXd& b, VectorXd& xout, Stop stop) {
     if (!use_direct()) {
@@ -469,20 +485,22 @@ struct MassSpringSimulator::Impl {
           b, xout, [this](const VectorXd& in, VectorXd& out) { apply_block_jacobi(in, out); }, stop,
           20 * static_cast<int>(b.size()) + 100);
     }
-    if (active && last_reuse_iterations <= refactor_iterations) {
+    auto cg = [&] {
       const int before = stats.cg_iterations;
       const bool ok = pcg(
-          b, xout, [this](const VectorXd& in, VectorXd& out) { out = active->ldlt.solve(in); },
-          stop, max_reuse_iterations);
+          b, xout, [this](const VectorXd& in, VectorXd& out) { active->chol.solve(in, out); }, stop,
+          max_reuse_iterations);
       last_reuse_iterations = stats.cg_iterations - before;
-      if (ok) return true;
-    }
-    last_reuse_iterations = 0;
+      return ok;
+    };
+    if (active && last_reuse_iterations <= refactor_iterations && cg()) return true;
     Solver& slot = base.valid || in_adjoint ? work : base;
-    if (!factorize(slot)) return false;
+    if (!factorize(slot)) {
+      if (active == &slot) active = nullptr;
+      return false;
+    }
     active = &slot;
-    xout = slot.ldlt.solve(b);
-    return xout.allFinite();
+    return cg();
   }
 
   // Largest per-node position-like size max_i |s_i| / m_i of a residual on free rows.
@@ -496,12 +514,8 @@ struct MassSpringSimulator::Impl {
 
   bool factorize(Solver& slot) {
     ++stats.factorizations;
-    if (!slot.analyzed) {
-      slot.ldlt.analyzePattern(J);
-      slot.analyzed = true;
-    }
-    slot.ldlt.factorize(J);
-    slot.valid = slot.ldlt.info() == Eigen::Success;
+    if (slot.chol.empty()) slot.chol = detail::SparseCholesky(analysis());
+    slot.valid = slot.chol.factorize(J);
     return slot.valid;
   }
 
@@ -809,7 +823,6 @@ struct MassSpringSimulator::Impl {
     const bool moving = in.anchor_targets.rows() != 0;
     Lag lag;
     VectorXd G, lam(n3), Jlam, gx_new(n3), gv_new(n3);
-    Eigen::SparseLU<Eigen::SparseMatrix<double>> lu;
     // Adjoint solves use `work` only: `base` (a projected Hessian at the step's start) is far
     // from the exact Hessians at its end.
     active = nullptr;
@@ -832,17 +845,15 @@ struct MassSpringSimulator::Impl {
         VectorXd lf;
         const double target = P().adjoint_tolerance * Gf.norm();
         // CG preconditioned by the factorization of a later substep's matrix (refactorized
-        // when that stalls). The exact Hessian may be indefinite (compressed springs): CG then
-        // breaks down and the system is solved by LDL^T, else LU.
+        // when that stalls). The exact Hessian may be indefinite (compressed springs): LL^T
+        // then fails and the system is solved by LDL^T, else LU.
         if (!linear_solve(Gf, lf, [&](const VectorXd& res) { return res.norm() <= target; })) {
-          if (factorize(work)) {
-            lf = work.ldlt.solve(Gf);
-          } else {
-            lu.compute(J);
-            if (lu.info() != Eigen::Success)
-              throw std::runtime_error("mass_spring: singular system in step_vjp");
-            lf = lu.solve(Gf);
-          }
+          if (!fallback.factor)
+            fallback.factor = std::make_unique<detail::SymmetricFactor>(analysis());
+          ++stats.factorizations;
+          if (!fallback.factor->factorize(J))
+            throw std::runtime_error("mass_spring: singular system in step_vjp");
+          lf = fallback.factor->solve(Gf);
         }
         for (size_t k = 0; k < m.free_nodes.size(); ++k)
           lam.segment<3>(3 * m.free_nodes[k]) = lf.segment<3>(3 * static_cast<Eigen::Index>(k));
@@ -883,7 +894,7 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
       m_sim.make_lag(m_sim.tape.xs[k], m_sim.tape.vs[k], in.control, m_lag[k]);
       if (m.free_nodes.empty()) continue;
       m_sim.assemble(m_sim.tape.xs[k + 1], m_lag[k], m_h, true);
-      m_factor[k] = std::make_unique<detail::SymmetricFactor>();
+      m_factor[k] = std::make_unique<detail::SymmetricFactor>(m_sim.analysis());
       if (!m_factor[k]->factorize(m_sim.J))
         throw std::runtime_error("mass_spring: singular system in linearize_step");
     }

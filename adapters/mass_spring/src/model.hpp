@@ -3,12 +3,14 @@
 // sparsity pattern of the free-free system matrix (shared between clones).
 
 #include <array>
+#include <memory>
 #include <optional>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 
+#include "cholesky.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/core/thin_sheet.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
@@ -41,6 +43,9 @@ struct Model {
   // (-1 when an end is anchored).
   std::vector<std::array<int, 3>> diag_offset;
   std::vector<std::array<int, 6>> spring_offset;
+  // Symbolic analysis of `pattern` for the sparse Cholesky factorizations, made on first use
+  // and shared by every clone.
+  std::shared_ptr<SharedCholeskyAnalysis> cholesky = std::make_shared<SharedCholeskyAnalysis>();
 };
 
 /// The sheet of a thin closed cloth (Params::single_sheet), or nothing when the surface does not

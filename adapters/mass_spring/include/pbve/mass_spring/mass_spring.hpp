@@ -41,8 +41,8 @@ std::string to_string(Material m);
 /// Linear solver of the Newton and adjoint systems (sparse, symmetric).
 enum class LinearSolver {
   automatic,  ///< direct below Params::direct_solver_max_dofs free unknowns, iterative above
-  /// sparse LDL^T (Eigen SimplicialLDLT, pattern analyzed once), factorized about once per
-  /// step: later Newton iterations and substeps of the step run conjugate gradients
+  /// sparse LL^T (CHOLMOD supernodal, pattern analyzed once and shared by clones), factorized
+  /// about once per substep: later Newton iterations and substeps run conjugate gradients
   /// preconditioned by that factorization, and factorize again only if those stall
   direct,
   /// conjugate gradients with a 3x3 block-Jacobi preconditioner (no factorization: least

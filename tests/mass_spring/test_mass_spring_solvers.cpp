@@ -1,0 +1,234 @@
+// The linear solvers of pbve::mass_spring: the sparse Cholesky factorizations (CHOLMOD, a
+// symbolic analysis shared between factorizations and threads), the LDL^T / LU fallback for
+// indefinite matrices, and, through the simulator, that clones stepping in parallel threads
+// and separately built simulators reproduce serial runs bit for bit.
+
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <random>
+#include <thread>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include <gtest/gtest.h>
+
+#include "../../adapters/mass_spring/src/cholesky.hpp"
+#include "../../adapters/mass_spring/src/factor.hpp"
+#include "pbve/edit/synth.hpp"
+#include "pbve/mass_spring/mass_spring.hpp"
+
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::SparseMatrix;
+using Eigen::Vector3d;
+using Eigen::VectorXd;
+using pbve::SimState;
+using pbve::StepInput;
+using pbve::Vertices;
+using pbve::mass_spring::LinearSolver;
+using pbve::mass_spring::MassSpringSimulator;
+using pbve::mass_spring::Material;
+using pbve::mass_spring::Params;
+
+// The system matrix of a backward Euler substep of an n x n sheet of side 1 m (x-y plane,
+// slightly wrinkled in z) with springs to the 8 neighbours: m (1 + h alpha) I per node plus
+// h^2 k [(1 - t) u u^T + t I] per spring (t: stretch of the spring), with the cloth preset's
+// scaling: node mass 0.3 kg/m^2 x area, k = 2000 N/m, h = 1/300 s. Both triangles stored;
+// `positions` gets the node positions.
+SparseMatrix<double> sheet_matrix(int n, double stretch, VectorXd& positions) {
+  const double L = 1.0 / (n - 1), h = 1.0 / 300.0, m = 0.3 * L * L, k = 2000.0;
+  positions.resize(3 * n * n);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      positions.segment<3>(3 * (j * n + i)) =
+          Vector3d(i * L, j * L, 0.01 * std::sin(7.0 * i * L) * std::cos(5.0 * j * L));
+  std::vector<Eigen::Triplet<double>> t;
+  auto add = [&t](int a, int b, const Matrix3d& B) {
+    for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r) t.emplace_back(3 * a + r, 3 * b + c, B(r, c));
+  };
+  for (int a = 0; a < n * n; ++a) add(a, a, m * 1.005 * Matrix3d::Identity());
+  const int offsets[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      for (const auto& o : offsets) {
+        const int i2 = i + o[0], j2 = j + o[1];
+        if (i2 >= n || j2 < 0 || j2 >= n) continue;
+        const int a = j * n + i, b = j2 * n + i2;
+        const Vector3d u = (positions.segment<3>(3 * b) - positions.segment<3>(3 * a)).normalized();
+        const Matrix3d B =
+            h * h * k * ((1.0 - stretch) * u * u.transpose() + stretch * Matrix3d::Identity());
+        add(a, a, B);
+        add(b, b, B);
+        add(a, b, -B);
+        add(b, a, -B);
+      }
+  SparseMatrix<double> A(3 * n * n, 3 * n * n);
+  A.setFromTriplets(t.begin(), t.end());
+  A.makeCompressed();
+  return A;
+}
+
+VectorXd random_vector(Eigen::Index n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> d(0.0, 1.0);
+  return VectorXd::NullaryExpr(n, [&] { return d(rng); });
+}
+
+TEST(MassSpringSolvers, CholeskySolvesAndIsReproducible) {
+  VectorXd x0;
+  const SparseMatrix<double> A = sheet_matrix(30, 0.02, x0);
+  auto analysis = std::make_shared<const pbve::mass_spring::detail::CholeskyAnalysis>(A);
+  EXPECT_GT(analysis->factor_nonzeros(), static_cast<double>(A.nonZeros()) / 2);
+  pbve::mass_spring::detail::SparseCholesky a(analysis), b(analysis);
+  ASSERT_TRUE(a.factorize(A));
+  ASSERT_TRUE(b.factorize(A));
+  const VectorXd rhs = random_vector(A.rows(), 1);
+  VectorXd xa, xb;
+  a.solve(rhs, xa);
+  b.solve(rhs, xb);
+  EXPECT_LT((A * xa - rhs).norm(), 1e-12 * rhs.norm() * 1e3);
+  // Same analysis, same matrix: the same bits.
+  ASSERT_EQ(xa.size(), xb.size());
+  EXPECT_EQ(std::memcmp(xa.data(), xb.data(), sizeof(double) * static_cast<size_t>(xa.size())), 0);
+  // A copy shares the analysis but not the factor.
+  const pbve::mass_spring::detail::SparseCholesky c(a);
+  EXPECT_FALSE(c.valid());
+  // An indefinite matrix is refused by LL^T.
+  SparseMatrix<double> I(A.rows(), A.cols());
+  I.setIdentity();
+  const SparseMatrix<double> shifted = A - 2.0 * A.diagonal().mean() * I;
+  EXPECT_FALSE(a.factorize(shifted));
+  EXPECT_FALSE(a.valid());
+  EXPECT_TRUE(a.factorize(A));  // and the factor is usable again
+}
+
+TEST(MassSpringSolvers, IndefiniteMatricesFallBackToLdlt) {
+  VectorXd x0;
+  const SparseMatrix<double> A = sheet_matrix(20, 0.02, x0);
+  // Shift the spectrum so that it straddles zero (nonsingular: the shift is no eigenvalue).
+  SparseMatrix<double> I(A.rows(), A.cols());
+  I.setIdentity();
+  const SparseMatrix<double> S = A - 0.7377 * A.diagonal().mean() * I;
+  pbve::mass_spring::detail::SymmetricFactor f(
+      std::make_shared<const pbve::mass_spring::detail::CholeskyAnalysis>(A));
+  ASSERT_TRUE(f.factorize(S));
+  EXPECT_FALSE(f.positive_definite());
+  const VectorXd rhs = random_vector(A.rows(), 2);
+  const VectorXd x = f.solve(rhs);
+  EXPECT_LT((S * x - rhs).norm(), 1e-8 * rhs.norm());
+  ASSERT_TRUE(f.factorize(A));
+  EXPECT_TRUE(f.positive_definite());
+}
+
+// ----- through the simulator ---------------------------------------------------------------
+
+// The board of example 1 (40 x 30 x 1 cm, two layers tied), refined to `edge` metres, held by
+// the middle of its top edge.
+struct Board {
+  pbve::Mesh mesh;
+  std::vector<int> anchors;
+  StepInput input(int f) const {
+    StepInput in;
+    in.anchor_targets.resize(static_cast<Eigen::Index>(anchors.size()), 3);
+    const double yaw = 1.4 * std::sin(2 * 3.14159265358979 * 0.9 * f / 30.0);
+    const Matrix3d R = Eigen::AngleAxisd(yaw, Vector3d::UnitY()).toRotationMatrix();
+    for (size_t k = 0; k < anchors.size(); ++k)
+      in.anchor_targets.row(static_cast<Eigen::Index>(k)) =
+          (R * mesh.vertices.row(anchors[k]).transpose()).transpose();
+    return in;
+  }
+};
+
+Board make_board(double edge) {
+  Board b;
+  b.mesh = pbve::refine_mesh(pbve::make_box_mesh(0.4, 0.3, 0.01), edge);
+  for (int i = 0; i < b.mesh.num_vertices(); ++i)
+    if (std::abs(b.mesh.vertices(i, 1)) < 1e-9 && std::abs(b.mesh.vertices(i, 0)) <= 0.05)
+      b.anchors.push_back(i);
+  return b;
+}
+
+Params board_params(LinearSolver solver, double tolerance) {
+  Params p = Params::preset(Material::cloth);
+  p.substeps = 3;
+  p.linear_solver = solver;
+  p.newton_tolerance = tolerance;
+  p.single_sheet = 0;  // the two tied layers: the larger system, one block per vertex
+  return p;
+}
+
+bool bit_equal(const Vertices& a, const Vertices& b) {
+  return a.rows() == b.rows() && a.cols() == b.cols() &&
+         std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.size())) == 0;
+}
+
+TEST(MassSpringSolvers, ParallelClonesReproduceSerialRuns) {
+  // Clones step different controls in parallel threads (as parallel central differences do);
+  // each must match the same control stepped serially, bit for bit: the factorizations share
+  // one symbolic analysis and BLAS runs in the calling thread.
+  // (The iterative solver keeps no factorization between calls; its determinism is the
+  // conformance suite's.)
+  for (LinearSolver solver : {LinearSolver::direct}) {
+    const Board board = make_board(0.035);
+    MassSpringSimulator sim(board.mesh, board.anchors, board_params(solver, 1e-6));
+    for (int f = 1; f <= 2; ++f) sim.step(board.input(f));
+    const SimState s0 = sim.save();
+    const int probes = 4;
+    std::vector<StepInput> inputs;
+    for (int k = 0; k < probes; ++k) {
+      StepInput in = board.input(3);
+      in.control = 1e-4 * random_vector(3 * sim.num_vertices(), 10 + k);
+      inputs.push_back(in);
+    }
+    std::vector<Vertices> serial, parallel(probes);
+    std::vector<VectorXd> serial_jvp, parallel_jvp(probes);
+    const VectorXd du = random_vector(3 * sim.num_vertices(), 99);
+    for (int k = 0; k < probes; ++k) {
+      sim.restore(s0);
+      sim.step(inputs[static_cast<size_t>(k)]);
+      serial.push_back(sim.positions());
+      serial_jvp.push_back(sim.linearize_step(s0, inputs[static_cast<size_t>(k)])->jvp({}, du));
+    }
+    std::vector<std::unique_ptr<pbve::Simulator>> clones;
+    for (int k = 0; k < probes; ++k) clones.push_back(sim.clone());
+    std::vector<std::thread> threads;
+    for (int k = 0; k < probes; ++k)
+      threads.emplace_back([&, k] {
+        pbve::Simulator& c = *clones[static_cast<size_t>(k)];
+        c.restore(s0);
+        c.step(inputs[static_cast<size_t>(k)]);
+        parallel[static_cast<size_t>(k)] = c.positions();
+        parallel_jvp[static_cast<size_t>(k)] =
+            c.linearize_step(s0, inputs[static_cast<size_t>(k)])->jvp({}, du);
+      });
+    for (std::thread& t : threads) t.join();
+    for (int k = 0; k < probes; ++k) {
+      EXPECT_TRUE(bit_equal(serial[static_cast<size_t>(k)], parallel[static_cast<size_t>(k)]))
+          << "probe " << k << (solver == LinearSolver::direct ? " direct" : " iterative");
+      const VectorXd& a = serial_jvp[static_cast<size_t>(k)];
+      const VectorXd& b = parallel_jvp[static_cast<size_t>(k)];
+      ASSERT_EQ(a.size(), b.size());
+      EXPECT_EQ(std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.size())), 0)
+          << "jvp of probe " << k;
+    }
+  }
+}
+
+TEST(MassSpringSolvers, FreshInstancesStepIdentically) {
+  // Two simulators built separately (each its own symbolic analysis, AMD or METIS ordering)
+  // give the same bits.
+  const Board board = make_board(0.035);
+  MassSpringSimulator a(board.mesh, board.anchors, board_params(LinearSolver::direct, 1e-6));
+  MassSpringSimulator b(board.mesh, board.anchors, board_params(LinearSolver::direct, 1e-6));
+  for (int f = 1; f <= 3; ++f) {
+    a.step(board.input(f));
+    b.step(board.input(f));
+  }
+  EXPECT_TRUE(bit_equal(a.positions(), b.positions()));
+}
+
+}  // namespace
