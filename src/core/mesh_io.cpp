@@ -871,14 +871,22 @@ std::string part_name_of(const Mesh& mesh, int part) {
 
 }  // namespace
 
+Mesh parse_obj(std::string_view text, const std::filesystem::path& name) {
+  return ObjReader(name, text).read();
+}
+
+Mesh parse_ply(std::string_view data, const std::filesystem::path& name) {
+  return PlyReader(name, data).read();
+}
+
 Mesh load_obj(const std::filesystem::path& path) {
   const FileData file(path);
-  return ObjReader(path, file.view()).read();
+  return parse_obj(file.view(), path);
 }
 
 Mesh load_ply(const std::filesystem::path& path) {
   const FileData file(path);
-  return PlyReader(path, file.view()).read();
+  return parse_ply(file.view(), path);
 }
 
 Mesh load_mesh(const std::filesystem::path& path) {

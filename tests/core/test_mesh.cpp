@@ -161,6 +161,18 @@ TEST(MeshObj, LoadMeshChoosesByExtensionCaseInsensitive) {
   EXPECT_TRUE(contains(e.message(), ".stl")) << e.what();
 }
 
+TEST(MeshObj, ParseFromMemoryMatchesTheFileReader) {
+  TempDir dir;
+  const std::string text = "g a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\ng b\nf 1 2 4\n";
+  const auto path = write_text(dir / "mem.obj", text);
+  expect_same_mesh(parse_obj(text, "mem.obj"), load_obj(path));
+  // Errors name the given name; the text need not end in a null character.
+  const std::string_view cut(text.data(), text.size() - 3);  // "f 1 2 4" becomes "f 1 2"
+  const InputError e = expect_input_error([&] { parse_obj(cut, "named.obj"); });
+  EXPECT_EQ(e.file(), "named.obj");
+  EXPECT_EQ(e.line(), 8);
+}
+
 // ---------------------------------------------------------------------------------------
 // OBJ bad input: every error names the file and the line
 
