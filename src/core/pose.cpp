@@ -113,8 +113,12 @@ std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
     values.push_back(v);
   }
   if (values.size() == 6) {
-    return Pose::from_rodrigues({values[0], values[1], values[2]},
-                                {values[3], values[4], values[5]});
+    const Eigen::Vector3d rvec(values[0], values[1], values[2]);
+    // Finite components can still have an infinite length (the angle): no rotation.
+    if (!std::isfinite(rvec.stableNorm()))
+      throw InputError("the rotation vector is too long: its length (the angle) overflows", path,
+                       line);
+    return Pose::from_rodrigues(rvec, {values[3], values[4], values[5]});
   }
   if (values.size() != 16)
     throw InputError("expected 16 or 6 numbers or 'lost', found " + std::to_string(values.size()),

@@ -186,6 +186,13 @@ TEST(PoseFileBadInput, NotFinite) {
   expect_bad(kGood16 + kGood16 + "1 0 0 inf 0 1 0 0 0 0 1 1 0 0 0 1\n", 3, "not finite");
 }
 
+// Breaks fuzz_pose's "poses are finite" expectation without the check
+// (tests/fuzz/corpus/pose/regress_rotation_vector_overflow.txt): the angle was infinite and the
+// rotation NaN, accepted as a pose.
+TEST(PoseFileBadInput, RotationVectorWhoseLengthOverflows) {
+  expect_bad(kGood16 + "1.7e308 1.7e308 1.7e308 0 0 1\n", 2, "rotation vector is too long");
+}
+
 TEST(PoseFileBadInput, NotARotation) {
   // A scale of 1.1 along x: R^T R - I has 0.21 on the diagonal.
   expect_bad("1.1 0 0 0 0 1 0 0 0 0 1 1 0 0 0 1\n", 1, "max |R^T R - I| = 0.21");
