@@ -1,6 +1,6 @@
 # Third-party dependencies, all from Debian packages (scripts/install-deps.sh installs them).
 find_package(Eigen3 3.4 REQUIRED NO_MODULE)
-find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs videoio photo video calib3d)
+find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs videoio photo video calib3d features2d)
 find_package(Threads REQUIRED)
 find_package(embree 3 REQUIRED)
 find_package(TBB REQUIRED)

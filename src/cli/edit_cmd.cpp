@@ -113,6 +113,10 @@ int run_edit(const std::vector<std::string>& argv) {
   std::signal(SIGINT, previous);
   const ReportSummary s = r.report.summary();
   std::printf("edited video: %s\nreport:       %s\n", r.video.c_str(), r.report_path.c_str());
+  if (r.report.tracking)
+    std::printf("tracked poses: %s (%zu frames lost, %.1f ms per frame)\n",
+                r.report.tracking->poses.c_str(), r.report.tracking->lost.size(),
+                r.report.tracking->ms_per_frame);
   std::printf(
       "frames %d, violation mean %.3f%% max %.3f%%, control/physical force median %.3f, "
       "%.1f ms/frame\n",

@@ -44,6 +44,9 @@ int run_synth(const std::vector<std::string>& argv) {
         "options:\n"
         "  --shape S        board (default) | figurine | ball | statue (fractured, needs Bullet)\n"
         "  --motion M       swing (default) | wave | stop | bounce | orbit | still\n"
+        "  --engine E       mass_spring | bullet (default: mass_spring, bullet for the statue)\n"
+        "  --amplitude DEG  peak turn of swing (default 80) or stop (default 20)\n"
+        "  --frequency HZ   turns per second of swing (default 0.9)\n"
         "  --frames N       number of frames (default 90)\n"
         "  --fps F          frame rate (default 30)\n"
         "  --size WxH       image size (default 640x480)\n"
@@ -56,16 +59,23 @@ int run_synth(const std::vector<std::string>& argv) {
   SynthOptions o;
   o.shape = args.value("--shape", {}, o.shape);
   o.motion = args.value("--motion", {}, o.motion);
+  o.engine = args.value("--engine", {}, o.engine);
   o.frames = parse_int(args.value("--frames", {}, "90"), "--frames");
-  const std::string fps = args.value("--fps", {}, "30");
-  try {
-    size_t n = 0;
-    o.fps = std::stod(fps, &n);
-    if (n != fps.size() || !(o.fps > 0.0) || !std::isfinite(o.fps))
-      throw std::invalid_argument(fps);
-  } catch (const std::exception&) {
-    throw UsageError("--fps expects a positive number, got '" + fps + "'");
-  }
+  auto positive = [&](const char* flag, const std::string& text) {
+    try {
+      size_t n = 0;
+      const double v = std::stod(text, &n);
+      if (n != text.size() || !(v > 0.0) || !std::isfinite(v)) throw std::invalid_argument(text);
+      return v;
+    } catch (const std::exception&) {
+      throw UsageError(std::string(flag) + " expects a positive number, got '" + text + "'");
+    }
+  };
+  o.fps = positive("--fps", args.value("--fps", {}, "30"));
+  if (const std::string a = args.value("--amplitude"); !a.empty())
+    o.amplitude_deg = positive("--amplitude", a);
+  if (const std::string f = args.value("--frequency"); !f.empty())
+    o.frequency_hz = positive("--frequency", f);
   o.supersample = parse_int(args.value("--supersample", {}, "3"), "--supersample");
   const std::string size = args.value("--size", {}, "640x480");
   const auto x = size.find('x');

@@ -47,54 +47,6 @@ Camera parse_camera(const std::string& spec) {
   return c;
 }
 
-// Correspondence file: one pair per line, `VERTEX u v` (a mesh vertex index and its pixel) or
-// `x y z u v` (a point in mesh coordinates and its pixel); `#` starts a comment.
-Pose pose_from_file(const std::filesystem::path& path, const Mesh& mesh, const Camera& camera) {
-  std::ifstream in(path);
-  if (!in) throw InputError("cannot read the correspondence file", path);
-  std::vector<Eigen::Vector3d> points;
-  std::vector<Eigen::Vector2d> pixels;
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n) {
-    line = line.substr(0, line.find('#'));
-    std::istringstream ls(line);
-    std::vector<std::string> tok;
-    for (std::string t; ls >> t;) tok.push_back(t);
-    if (tok.empty()) continue;
-    std::vector<double> x;
-    for (const auto& t : tok) {
-      try {
-        size_t used = 0;
-        x.push_back(std::stod(t, &used));
-        if (used != t.size() || !std::isfinite(x.back())) throw std::invalid_argument(t);
-      } catch (const std::exception&) {
-        throw InputError("expected a number, found '" + t + "'", path, n);
-      }
-    }
-    if (x.size() == 3) {
-      const double id = x[0];
-      if (id != std::floor(id) || id < 0 || id >= mesh.num_vertices())
-        throw InputError("vertex index " + tok[0] + " out of range (the mesh has " +
-                             std::to_string(mesh.num_vertices()) + " vertices)",
-                         path, n);
-      points.push_back(mesh.vertices.row(static_cast<Eigen::Index>(id)).transpose());
-      pixels.emplace_back(x[1], x[2]);
-    } else if (x.size() == 5) {
-      points.emplace_back(x[0], x[1], x[2]);
-      pixels.emplace_back(x[3], x[4]);
-    } else {
-      throw InputError(
-          "expected 'VERTEX u v' or 'x y z u v', found " + std::to_string(x.size()) + " numbers",
-          path, n);
-    }
-  }
-  try {
-    return pose_from_correspondences(points, pixels, camera);
-  } catch (const InputError& e) {
-    throw InputError(e.message(), path);
-  }
-}
-
 }  // namespace
 
 int run_track(const std::vector<std::string>& argv) {
@@ -103,7 +55,7 @@ int run_track(const std::vector<std::string>& argv) {
     std::puts(
         "usage: pbve track VIDEO MESH --camera fx,fy,cx,cy (--initial-pose POSES.txt |\n"
         "                  --correspondences PAIRS.txt) -o POSES.txt [--overlay OVERLAY.mp4]\n"
-        "                  [--truth TRUE_POSES.txt] [--quiet]\n"
+        "                  [--truth TRUE_POSES.txt] [--log LOG.csv] [--quiet]\n"
         "\n"
         "Estimates the pose of the object (MESH, OBJ or PLY) in every frame of VIDEO from a\n"
         "static camera, starting from its pose in the first frame, and writes a pose file (one\n"
@@ -119,6 +71,9 @@ int run_track(const std::vector<std::string>& argv) {
         "                            and crease edges (green; red text where lost)\n"
         "  --truth FILE              true poses (e.g. from pbve synth): prints the reprojection\n"
         "                            error per frame (mean over vertices): median and maximum\n"
+        "  --log FILE                per-frame table (CSV): lost, corners, inliers, RMS, "
+        "silhouette\n"
+        "                            agreement, keyframe, re-detection, error against --truth\n"
         "  --quiet                   no progress output\n"
         "\n"
         "exit status: 0 on success, 1 on error or when the object left the view for good (the\n"
@@ -131,6 +86,7 @@ int run_track(const std::vector<std::string>& argv) {
   const std::string output = args.value("--output", "-o");
   const std::string overlay = args.value("--overlay");
   const std::string truth = args.value("--truth");
+  const std::string log = args.value("--log");
   const bool quiet = args.flag("--quiet");
   const auto pos = args.positional();
   if (pos.size() != 2) throw UsageError("expected VIDEO and MESH");
@@ -142,7 +98,8 @@ int run_track(const std::vector<std::string>& argv) {
         "(exactly one)");
   for (const auto& in : {pos[0], pos[1], initial, pairs, truth})
     if (!in.empty() && (std::filesystem::path(in) == output ||
-                        (!overlay.empty() && std::filesystem::path(in) == overlay)))
+                        (!overlay.empty() && std::filesystem::path(in) == overlay) ||
+                        (!log.empty() && std::filesystem::path(in) == log)))
       throw UsageError("an output path equals the input " + in);
 
   Footage footage = Footage::open_video(pos[0]);
@@ -161,7 +118,7 @@ int run_track(const std::vector<std::string>& argv) {
       throw InputError("the first line must be a pose (not `lost`) for frame 0", initial, 1);
     start = *t.poses[0];
   } else {
-    start = pose_from_file(pairs, mesh, camera);
+    start = pose_from_correspondence_file(pairs, mesh, camera);
   }
   PoseTrack true_track;
   if (!truth.empty()) true_track = load_pose_file(truth);
@@ -173,6 +130,8 @@ int run_track(const std::vector<std::string>& argv) {
   const bool tty = ::isatty(STDERR_FILENO) != 0;
   const int n = footage.frame_count();
   std::vector<double> errors;
+  std::ostringstream table;
+  table << "frame,lost,correspondences,inliers,rms_px,agreement,keyframe,redetected,error_px\n";
   TrackFrameCallback on_frame = [&](int t, const cv::Mat& frame, const std::optional<Pose>& pose,
                                     const TrackFrameInfo& info) {
     if (writer) {
@@ -183,10 +142,18 @@ int run_track(const std::vector<std::string>& argv) {
                     cv::Scalar(0, 0, 255), 2);
       writer->write(out);
     }
-    if (t < true_track.size() && true_track.poses[static_cast<size_t>(t)])
+    const bool have_truth = t < true_track.size() && true_track.poses[static_cast<size_t>(t)];
+    if (have_truth)
       errors.push_back(pose ? reprojection_error_px(mesh, camera, *pose,
                                                     *true_track.poses[static_cast<size_t>(t)])
                             : std::numeric_limits<double>::infinity());
+    char row[256];
+    std::snprintf(row, sizeof row, "%d,%d,%d,%d,%.3f,%.3f,%d,%d,", t, info.lost ? 1 : 0,
+                  info.correspondences, info.inliers, info.rms_px, info.agreement,
+                  info.new_keyframe ? 1 : 0, info.relocalized ? 1 : 0);
+    table << row;
+    if (have_truth) table << (pose ? std::to_string(errors.back()) : std::string("inf"));
+    table << "\n";
     if (!quiet) {
       if (tty)
         std::fprintf(stderr, "\rframe %d/%d  %s  inliers %d   ", t + 1, n,
@@ -199,6 +166,12 @@ int run_track(const std::vector<std::string>& argv) {
   const TrackResult r = track_footage(footage, mesh, camera, start, TrackOptions{}, on_frame);
   if (!quiet && tty) std::fputc('\n', stderr);
   save_pose_file(r.track, output);
+  if (!log.empty())
+    write_atomically(log, [&](const std::filesystem::path& tmp) {
+      std::ofstream f(tmp);
+      f << table.str();
+      if (!f) throw InputError("cannot write the log", log);
+    });
   if (writer) writer->close();
 
   std::printf("poses:   %s (%d frames, %d lost)\n", output.c_str(), r.track.size(),

@@ -57,7 +57,8 @@ class WindowProblem {
  public:
   WindowProblem(Simulator& sim, std::span<const ControlFrameInput> window, int frames,
                 const Triangles& triangles, const std::vector<std::uint8_t>& interior,
-                const ControlOptions& options, const Eigen::VectorXd& previous)
+                const ControlOptions& options, const Eigen::VectorXd& previous,
+                const Vertices& reference)
       : m_sim(sim), m_triangles(triangles), m_options(options) {
     m_layout = sim.control_layout();
     m_bs = m_layout.block_size();
@@ -87,6 +88,12 @@ class WindowProblem {
       for (size_t j = 0; j < nf; ++j)
         pen[j] =
             in.unobserved[j] || (options.penalize_interior && !interior.empty() && interior[j]);
+      // Occlusion pairs from the positions at the start of the window.
+      std::vector<OcclusionPair> pairs;
+      if (options.occlusion_margin > 0.0 && in.observed.size() == nf &&
+          reference.rows() == x0.rows())
+        pairs = occlusion_pairs(x0, reference, triangles, pen, in.observed, 0.0);
+      m_occlusion.push_back(std::move(pairs));
       m_penalized.push_back(std::move(pen));
     }
     m_weights = weights;
@@ -114,6 +121,7 @@ class WindowProblem {
   }
 
   const ControlLayout& layout() const { return m_layout; }
+  const ControlOptions& options() const { return m_options; }
   int frames() const { return m_frames; }
   int size() const { return m_size; }
   int num_variables() const { return m_frames * m_nv; }
@@ -193,10 +201,25 @@ class WindowProblem {
     return u;
   }
 
-  // EC of frame k at positions x (and its gradient).
+  // EC of frame k at positions x (and its gradient): the facing barrier of the must-stay-hidden
+  // triangles plus the occlusion barrier of the vertices observed triangles hide.
   double visibility(int k, const Vertices& x, Vertices* grad) const {
-    return visibility_energy(x, m_triangles, m_penalized[static_cast<size_t>(k)], m_weights,
-                             m_options.barrier, grad);
+    const auto kk = static_cast<size_t>(k);
+    double e =
+        visibility_energy(x, m_triangles, m_penalized[kk], m_weights, m_options.barrier, grad);
+    if (!m_occlusion[kk].empty()) {
+      Vertices g;
+      e += occlusion_energy(x, m_triangles, m_occlusion[kk], occlusion_barrier(),
+                            grad ? &g : nullptr);
+      if (grad) *grad += g;
+    }
+    return e;
+  }
+  VisibilityBarrier occlusion_barrier() const {
+    return {m_options.occlusion_margin, m_options.barrier.clamp};
+  }
+  const std::vector<OcclusionPair>& occlusion(int k) const {
+    return m_occlusion[static_cast<size_t>(k)];
   }
 
   // lF EF + lT ET over the window with gradients w.r.t. each frame's full control; EF and ET
@@ -301,11 +324,15 @@ class WindowProblem {
     const std::vector<Eigen::VectorXd> u = expand(z);
     Eval ev;
     ev.energy = force_terms(u, nullptr, &ev.ef, &ev.et);
-    std::vector<SimState> states;
+    std::vector<SimState>& states = m_last_states;
+    std::vector<Vertices>& positions = m_last_positions;
+    states.clear();
+    positions.clear();
     std::vector<Vertices> dx;
     const bool reuse_zero = m_has_zero_step && u[0].isZero(0.0);
     if (reuse_zero) {
-      if (grad) states.push_back(m_state0);
+      states.push_back(m_state0);
+      positions.push_back(m_zero_positions);
       Vertices g;
       ev.ec = visibility(0, m_zero_positions, grad && adjoint ? &g : nullptr);
       if (grad && adjoint) dx.push_back(std::move(g));
@@ -314,15 +341,16 @@ class WindowProblem {
       m_sim.restore(m_state0);
     }
     for (int k = reuse_zero ? m_frames : 0; k < m_frames; ++k) {
-      if (grad) states.push_back(m_sim.save());
+      states.push_back(m_sim.save());
       m_sim.step(input(k, u[static_cast<size_t>(k)]));
       if (k == 0) {
         m_snapshot.state = m_sim.save();
         m_snapshot.physical = m_sim.physical_force_magnitudes();
         m_snapshot.valid = true;
       }
+      positions.push_back(m_sim.positions());
       Vertices g;
-      ev.ec += visibility(k, m_sim.positions(), grad && adjoint ? &g : nullptr);
+      ev.ec += visibility(k, positions.back(), grad && adjoint ? &g : nullptr);
       if (grad && adjoint) dx.push_back(std::move(g));
     }
     ev.energy += m_options.weights.visibility * ev.ec;
@@ -418,6 +446,15 @@ class WindowProblem {
 
   double gradient_ms() const { return m_gradient_ms; }
   int gradients() const { return m_gradients; }
+  void add_gradient(double ms) {
+    m_gradient_ms += ms;
+    ++m_gradients;
+  }
+  Simulator& simulator() const { return m_sim; }
+  // The state before each window frame and the surface positions after it, of the latest
+  // evaluate().
+  const std::vector<SimState>& last_states() const { return m_last_states; }
+  const std::vector<Vertices>& last_positions() const { return m_last_positions; }
 
  private:
   Simulator& m_sim;
@@ -427,6 +464,7 @@ class WindowProblem {
   int m_bs = 3, m_size = 0, m_frames = 1;
   std::vector<StepInput> m_inputs;
   std::vector<std::vector<std::uint8_t>> m_penalized;
+  std::vector<std::vector<OcclusionPair>> m_occlusion;  // per frame
   Eigen::VectorXd m_weights;
   Eigen::VectorXd m_previous;
   Eigen::VectorXd m_eps;
@@ -438,13 +476,72 @@ class WindowProblem {
   std::vector<int> m_active;
   std::vector<std::vector<Entry>> m_columns;  // per variable of a frame
   Snapshot m_snapshot;                        // of the latest evaluate()
-  Vertices m_zero_positions;                  // see set_zero_step()
+  std::vector<SimState> m_last_states;        // of the latest evaluate()
+  std::vector<Vertices> m_last_positions;
+  Vertices m_zero_positions;  // see set_zero_step()
   Snapshot m_zero_first;
   bool m_has_zero_step = false;
   int m_nv = 0;  // variables per frame
   std::vector<std::pair<int, int>> m_constraints;
   double m_gradient_ms = 0.0;
   int m_gradients = 0;
+};
+
+// The window energy with the dynamics linearized at a point z_lin: the positions after frame k
+// are X_k + dX_k, X_k those of the true evaluation at z_lin and dX_k the tangent of the chained
+// step linearizations along u(z) - u(z_lin); the force terms are exact. Each evaluation costs
+// one jvp per frame, each gradient one vjp per frame (Simulator::linearize_step()).
+class LinearModel {
+ public:
+  // `problem`'s latest evaluate() must be the one at z_lin.
+  LinearModel(WindowProblem& problem, const Eigen::VectorXd& z_lin)
+      : m_problem(problem), m_u_lin(problem.expand(z_lin.data())) {
+    Simulator& sim = problem.simulator();
+    m_x_lin = problem.last_positions();
+    const std::vector<SimState> states = problem.last_states();
+    for (int k = 0; k < problem.frames(); ++k)
+      m_lin.push_back(sim.linearize_step(states[static_cast<size_t>(k)],
+                                         problem.input(k, m_u_lin[static_cast<size_t>(k)])));
+  }
+
+  double evaluate(const double* z, double* grad) {
+    const auto t0 = Clock::now();
+    Simulator& sim = m_problem.simulator();
+    const int frames = m_problem.frames();
+    const std::vector<Eigen::VectorXd> u = m_problem.expand(z);
+    std::vector<Eigen::VectorXd> gu;
+    double energy = m_problem.force_terms(u, grad ? &gu : nullptr, nullptr, nullptr);
+    const double lc = m_problem.options().weights.visibility;
+    Eigen::VectorXd ds;
+    std::vector<Vertices> gx(static_cast<size_t>(frames));
+    for (int k = 0; k < frames; ++k) {
+      const auto kk = static_cast<size_t>(k);
+      ds = m_lin[kk]->jvp(ds, u[kk] - m_u_lin[kk]);
+      const Vertices x = m_x_lin[kk] + sim.position_tangent(ds);
+      energy += lc * m_problem.visibility(k, x, grad ? &gx[kk] : nullptr);
+    }
+    if (!grad) return energy;
+    Eigen::VectorXd gs = Eigen::VectorXd::Zero(sim.state_dim());
+    for (int k = frames - 1; k >= 0; --k) {
+      const auto kk = static_cast<size_t>(k);
+      gs += sim.position_cotangent(gx[kk]);
+      StepVjp vjp = m_lin[kk]->vjp(gs);
+      gu[kk] += lc * vjp.control;
+      gs = std::move(vjp.state);
+    }
+    const int nv = m_problem.variables_per_frame();
+    for (int k = 0; k < frames; ++k)
+      for (int i = 0; i < nv; ++i)
+        grad[k * nv + i] = m_problem.chain(gu[static_cast<size_t>(k)], i);
+    m_problem.add_gradient(ms_since(t0));
+    return energy;
+  }
+
+ private:
+  WindowProblem& m_problem;
+  std::vector<Eigen::VectorXd> m_u_lin;
+  std::vector<Vertices> m_x_lin;
+  std::vector<std::unique_ptr<StepLinearization>> m_lin;
 };
 
 bool use_adjoint(const Simulator& sim, GradientMode mode) {
@@ -555,6 +652,10 @@ void ControlOptimizer::set_options(const ControlOptions& options) {
       !(options.barrier.clamp > 0.0 && options.barrier.clamp < 1.0))
     throw std::invalid_argument("barrier needs margin > 0 and 0 < clamp < 1");
   if (options.max_evaluations < 1) throw std::invalid_argument("max_evaluations must be >= 1");
+  if (!(options.occlusion_margin >= 0.0 && options.occlusion_margin < 1.0))
+    throw std::invalid_argument("occlusion_margin must be in [0, 1)");
+  if (options.max_linearizations < 1)
+    throw std::invalid_argument("max_linearizations must be >= 1");
   if (options.constraint == ConstraintMode::hard && options.solver == ControlSolver::lbfgs)
     throw std::invalid_argument("the hard-constraint mode needs slsqp, mma, cobyla or ipopt");
   m_options = options;
@@ -578,7 +679,8 @@ std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
       if (is_free[static_cast<size_t>(b)]) out.push_back(b);
     return out;
   }
-  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
+  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous,
+                        m_reference);
   const int nvtx = sim.num_vertices();
   std::vector<char> seed(static_cast<size_t>(nvtx), 0);
   auto mark = [&](int k, const Vertices& x) {
@@ -586,6 +688,12 @@ std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
     for (Eigen::Index j = 0; j < m_triangles.rows(); ++j)
       if (problem.penalized(k)[static_cast<size_t>(j)] && s[j] < m_options.active_band)
         for (int c = 0; c < 3; ++c) seed[static_cast<size_t>(m_triangles(j, c))] = 1;
+    // Hidden vertices within 1.5 occlusion margins of the plane of the triangle hiding them.
+    for (const OcclusionPair& pr : problem.occlusion(k))
+      if (occlusion_depth(x, m_triangles, pr, nullptr) < 1.5 * m_options.occlusion_margin) {
+        seed[static_cast<size_t>(pr.vertex)] = 1;
+        for (int c = 0; c < 3; ++c) seed[static_cast<size_t>(m_triangles(pr.triangle, c))] = 1;
+      }
   };
   mark(0, sim.positions());
   // Predicted uncontrolled steps of the window.
@@ -691,7 +799,8 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
                                              const std::vector<int>& active) {
   const int frames = window_frames(m_options, window);
   const bool adjoint = use_adjoint(sim, mode);
-  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
+  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous,
+                        m_reference);
   const int size = problem.size();
   if (u.size() != 0 && u.size() != frames * size)
     throw std::invalid_argument("evaluate: u has " + std::to_string(u.size()) +
@@ -728,6 +837,7 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
 ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
                                                        const ControlFrameInput& frame) {
   const auto t0 = Clock::now();
+  capture_reference(sim);
   const ControlLayout layout = sim.control_layout();
   ControlFrameResult r;
   r.solver = m_options.solver;
@@ -735,7 +845,7 @@ ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
   std::span<const ControlFrameInput> one(&frame, 1);
   ControlOptions single = m_options;
   single.window = 1;
-  WindowProblem problem(sim, one, 1, m_triangles, m_interior, single, m_previous);
+  WindowProblem problem(sim, one, 1, m_triangles, m_interior, single, m_previous, m_reference);
   sim.step(problem.input(0, Eigen::VectorXd()));
   r.visibility_energy = problem.visibility(0, sim.positions(), nullptr);
   std::vector<Eigen::VectorXd> u{r.control};
@@ -750,9 +860,14 @@ ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
   return r;
 }
 
+void ControlOptimizer::capture_reference(const Simulator& sim) {
+  if (m_reference.rows() != sim.num_vertices()) m_reference = sim.positions();
+}
+
 ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const ControlFrameInput> window,
                                           const ControlCallbacks& callbacks) {
   const auto t_start = Clock::now();
+  capture_reference(sim);
   const int frames = window_frames(m_options, window);
   const bool adjoint = use_adjoint(sim, m_options.gradient);
   const bool hard = m_options.constraint == ConstraintMode::hard;
@@ -762,13 +877,16 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   ControlFrameResult r;
   r.solver = m_options.solver;
   r.adjoint = adjoint && !hard;
+  const bool linear = r.adjoint && m_options.linearized && sim.has_linearization();
+  r.linearized = linear;
 
   std::vector<Vertices> predicted;  // uncontrolled window, when the active-set rule simulated it
   WindowProblem::Snapshot predicted_first;
   const std::vector<int> active =
       select_blocks(sim, window, &predicted, &predicted_first.state, &predicted_first.physical);
   predicted_first.valid = static_cast<int>(predicted.size()) == frames;
-  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous);
+  WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous,
+                        m_reference);
   const int size = problem.size();
   const int bs = problem.layout().block_size();
   const int clusters = m_options.clusters;
@@ -853,7 +971,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
     // Energy at the initial guess; at zero control the active-set rule has just simulated
     // that window (same state and inputs, so the same positions bit for bit).
     WindowProblem::Eval initial;
-    if (u0.isZero(0.0) && predicted_first.valid) {
+    if (u0.isZero(0.0) && predicted_first.valid && !linear) {
       initial.energy =
           problem.force_terms(problem.expand(z0.data()), nullptr, &initial.ef, &initial.et);
       for (int k = 0; k < frames; ++k)
@@ -880,6 +998,72 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       r.message = "no triangle at risk with zero control";
       r.evaluations = 1;
       r.final_energy = r.initial_energy;
+    } else if (linear) {
+      // Outer iterations: linearize the window's dynamics at the current point, let the solver
+      // minimize the energy of that model (cheap: products with the linearization), check the
+      // candidate with a true simulation and keep it when it lowers the true energy; else try
+      // half and a quarter of the move, then stop.
+      const auto t_solve = Clock::now();
+      Eigen::VectorXd z_cur = z0;
+      double e_cur = r.initial_energy;
+      int model_evaluations = 0, linearizations = 0;
+      // The model is a local approximation, checked by a true step: its minimum is not worth
+      // finding to more than model_ftol_rel.
+      ControlOptions inner = m_options;
+      inner.ftol_rel = std::max(m_options.ftol_rel, m_options.model_ftol_rel);
+      detail::SolverOutcome out;
+      bool stop = false;
+      for (int outer = 0; outer < m_options.max_linearizations && !stop; ++outer) {
+        if (callbacks.cancel && callbacks.cancel()) {
+          out.status = ControlStatus::cancelled;
+          break;
+        }
+        LinearModel model(problem, z_cur);  // the latest evaluate() is the one at z_cur
+        ++linearizations;
+        double model_best = std::numeric_limits<double>::infinity();
+        Eigen::VectorXd z_model = z_cur;
+        detail::SolverProblem mp = sp;
+        mp.objective = [&](const double* z, double* grad) {
+          const double e = model.evaluate(z, grad);
+          ++model_evaluations;
+          if (e < model_best) {
+            model_best = e;
+            z_model = Eigen::Map<const Eigen::VectorXd>(z, n);
+          }
+          return e;
+        };
+        out = m_options.solver == ControlSolver::ipopt ? detail::solve_ipopt(mp, z_cur, inner)
+                                                       : detail::solve_nlopt(mp, z_cur, inner);
+        if (out.status == ControlStatus::cancelled || !(model_best < e_cur)) break;
+        bool accepted = false;
+        for (double t : {1.0, 0.5, 0.25}) {
+          const Eigen::VectorXd z_try = z_cur + t * (z_model - z_cur);
+          const double e = problem.evaluate(z_try.data(), nullptr, adjoint, par).energy;
+          ++evaluations;
+          if (callbacks.progress) callbacks.progress({evaluations, e, std::min(e, e_cur)});
+          if (e < e_cur) {
+            stop = e_cur - e <= m_options.ftol_rel * std::abs(e_cur);
+            z_cur = z_try;
+            e_cur = e;
+            best_snapshot = problem.last_snapshot();
+            accepted = true;
+            break;
+          }
+        }
+        if (!accepted) stop = true;
+      }
+      z_best = z_cur;
+      r.solve_ms = ms_since(t_solve);
+      r.status = out.status;
+      r.message = out.message;
+      r.iterations = model_evaluations;
+      r.model_evaluations = model_evaluations;
+      r.linearizations = linearizations;
+      r.evaluations = evaluations;
+      r.gradient_evaluations = problem.gradients();
+      r.gradient_ms = problem.gradient_ms();
+      if (frames > 1)
+        r.final_energy = problem.evaluate(z_best.data(), nullptr, adjoint, par).energy;
     } else {
       const auto t_solve = Clock::now();
       const detail::SolverOutcome out = m_options.solver == ControlSolver::ipopt

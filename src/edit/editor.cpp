@@ -22,6 +22,7 @@
 #include "pbve/core/pose.hpp"
 #include "pbve/render/plate.hpp"
 #include "pbve/render/renderer.hpp"
+#include "pbve/track/tracker.hpp"
 #include "pbve/visibility/metric.hpp"
 #include "pbve/visibility/ray_scene.hpp"
 #include "pbve/visibility/visibility.hpp"
@@ -130,6 +131,8 @@ ControlOptions control_options(const SceneControl& c) {
   o.barrier.margin = c.margin;
   o.force_bound = c.force_bound;
   o.clusters = c.clusters;
+  o.linearized = c.linearized;
+  o.max_linearizations = c.max_linearizations;
   return o;
 }
 
@@ -237,7 +240,25 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   check_input_file(scene, scene.input.video, "input.video", "video file");
   check_input_file(scene, scene.input.image, "input.image", "image file");
   check_input_file(scene, scene.object.mesh, "object.mesh", "mesh file");
-  check_input_file(scene, scene.object.poses, "object.poses", "pose file");
+  fs::path tracked_poses;  // with `poses: track`: where the tracked poses go
+  if (scene.object.track) {
+    check_input_file(scene, scene.object.initial_pose, "object.initial_pose", "initial pose file");
+    check_input_file(scene, scene.object.correspondences, "object.correspondences",
+                     "correspondence file");
+    if (!scene.input.image.empty())
+      throw scene_error(scene, "object.poses",
+                        "'poses: track' needs a video or an image sequence, not a single picture");
+    tracked_poses = scene.object.tracked_poses.empty()
+                        ? fs::path(result.video).replace_extension(".poses.txt")
+                        : scene.object.tracked_poses;
+    check_output_path(tracked_poses, scene, "object.tracked_poses", true);
+    for (const fs::path& in : {scene.object.initial_pose, scene.object.correspondences})
+      if (same_file(tracked_poses, in))
+        throw scene_error(scene, "object.tracked_poses",
+                          "the tracked poses would overwrite the input file " + in.string());
+  } else {
+    check_input_file(scene, scene.object.poses, "object.poses", "pose file");
+  }
   check_input_file(scene, scene.background.plate, "background.plate", "background plate");
   check_output_path(result.video, scene, "output.video", options.video.empty());
   check_output_path(result.report_path, scene, "output.report", options.report.empty());
@@ -267,6 +288,45 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   if (!findings.ok())
     report.warnings.push_back(scene.object.mesh.string() + ": " + findings.summary() +
                               " They are simulated as given: check the edited video there.");
+  PoseTrack track;
+  if (scene.object.track) {
+    // Tracking first, on the mesh as given (before fracture and refinement).
+    const Pose initial = [&] {
+      if (!scene.object.correspondences.empty())
+        return pose_from_correspondence_file(scene.object.correspondences, mesh, camera);
+      const PoseTrack first = load_pose_file(scene.object.initial_pose);
+      if (first.size() == 0 || !first.poses[0])
+        throw InputError("the first line must be a pose (not `lost`) for frame 0",
+                         scene.object.initial_pose, 1);
+      return *first.poses[0];
+    }();
+    Footage frames = open_footage(scene);
+    TrackResult tracked;
+    try {
+      tracked = track_footage(frames, mesh, camera, initial);
+    } catch (const InputError& e) {
+      if (!e.file().empty()) throw;
+      throw scene_error(
+          scene,
+          scene.object.correspondences.empty() ? "object.initial_pose" : "object.correspondences",
+          "tracking: " + e.message());
+    }
+    save_pose_file(tracked.track, tracked_poses);
+    track = tracked.track;
+    ReportTracking& rt = report.tracking.emplace();
+    rt.poses = tracked_poses;
+    rt.ms_per_frame = tracked.track_ms_per_frame;
+    rt.left_view_at = tracked.left_view_at;
+    for (int t = 0; t < tracked.track.size(); ++t)
+      if (!tracked.track.poses[static_cast<size_t>(t)]) rt.lost.push_back(t);
+    if (tracked.left_view_at >= 0)
+      report.warnings.push_back("tracking: the object left the view at frame " +
+                                std::to_string(tracked.left_view_at) + " and was not found again");
+  } else {
+    track = load_pose_file(scene.object.poses);
+  }
+  const fs::path& pose_source = scene.object.track ? tracked_poses : scene.object.poses;
+
   if (scene.object.fracture_pieces > 0) {
     FractureOptions fo;
     fo.pieces = scene.object.fracture_pieces;
@@ -280,14 +340,13 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   const int original_vertices = mesh.num_vertices();
   if (scene.object.refine > 0) mesh = refine_mesh(mesh, scene.object.refine);
 
-  PoseTrack track = load_pose_file(scene.object.poses);
   const int frames = footage.frame_count();
   if (!scene.input.image.empty() && track.size() == 1)
     track.poses.resize(static_cast<size_t>(frames), track.poses[0]);
   if (track.size() < frames)
     throw InputError("the pose file has " + std::to_string(track.size()) +
                          " poses but the footage has " + std::to_string(frames) + " frames",
-                     scene.object.poses);
+                     pose_source);
   if (track.size() > frames)
     report.warnings.push_back("the pose file has " + std::to_string(track.size()) + " poses for " +
                               std::to_string(frames) + " frames: the extra poses are ignored");
@@ -313,7 +372,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
         known = t;
         break;
       }
-    if (known < 0) throw InputError("every pose is 'lost': nothing to align", scene.object.poses);
+    if (known < 0) throw InputError("every pose is 'lost': nothing to align", pose_source);
     int last = known;
     for (int t = 0; t < end; ++t) {
       if (track.poses[static_cast<size_t>(t)])
@@ -439,6 +498,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
         window[k].dt = dt;
         window[k].anchor_targets = pose[static_cast<size_t>(tk)].apply(anchor_rest);
         window[k].unobserved = input_visibility(tk).keep_hidden;
+        window[k].observed = input_visibility(tk).observed;
       }
       const SimState before = sim->save();
       ControlFrameResult r;

@@ -123,6 +123,12 @@ void write_report(const Report& report, const std::filesystem::path& path) {
                       {"substep_factor", f.substep_factor}});
   }
   j["frames"] = std::move(frames);
+  if (report.tracking)
+    j["tracking"] = {{"poses", report.tracking->poses.string()},
+                     {"lost_frames", report.tracking->lost},
+                     {"lost", report.tracking->lost.size()},
+                     {"ms_per_frame", report.tracking->ms_per_frame},
+                     {"left_view_at", report.tracking->left_view_at}};
   const ReportSummary s = report.summary();
   j["summary"] = {{"frames", s.frames},
                   {"violation_pct_mean", s.violation_pct_mean},

@@ -232,11 +232,28 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
   require(r, root, "object", "");
   {
     const YAML::Node n = root["object"];
-    r.check_map(n, "object", {"mesh", "poses", "scale", "refine", "fracture", "anchors"});
+    r.check_map(n, "object",
+                {"mesh", "poses", "initial_pose", "correspondences", "tracked_poses", "scale",
+                 "refine", "fracture", "anchors"});
     require(r, n, "mesh", "object");
     require(r, n, "poses", "object");
     s.object.mesh = r.path(n["mesh"], "object.mesh");
-    s.object.poses = r.path(n["poses"], "object.poses");
+    // `poses: track` runs the tracker first (a file named track: `./track`).
+    s.object.track = n["poses"].IsScalar() && n["poses"].Scalar() == "track";
+    if (!s.object.track) s.object.poses = r.path(n["poses"], "object.poses");
+    for (const char* k : {"initial_pose", "correspondences", "tracked_poses"}) {
+      if (!n[k]) continue;
+      const std::string key = std::string("object.") + k;
+      if (!s.object.track) r.fail(n[k], key, "only used with 'poses: track'");
+      (k[0] == 'i'   ? s.object.initial_pose
+       : k[0] == 'c' ? s.object.correspondences
+                     : s.object.tracked_poses) = r.path(n[k], key);
+    }
+    if (s.object.track && !n["initial_pose"] == !n["correspondences"])
+      r.fail(n["poses"], "object.poses",
+             "'poses: track' needs the pose in the first frame: give exactly one of "
+             "object.initial_pose (a pose file) or object.correspondences (at least 4 "
+             "'VERTEX u v' or 'x y z u v' lines)");
     if (n["scale"]) s.object.scale = r.positive(n["scale"], "object.scale");
     if (n["refine"]) s.object.refine = r.positive(n["refine"], "object.refine");
     if (n["fracture"]) {
@@ -323,9 +340,10 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
 
   if (root["control"]) {
     const YAML::Node n = root["control"];
-    r.check_map(n, "control",
-                {"enabled", "weights", "window", "solver", "gradient", "active_set",
-                 "max_iterations", "warm_start", "margin", "force_bound", "clusters"});
+    r.check_map(
+        n, "control",
+        {"enabled", "weights", "window", "solver", "gradient", "active_set", "max_iterations",
+         "warm_start", "margin", "force_bound", "clusters", "linearized", "max_linearizations"});
     SceneControl& c = s.control;
     for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
     if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
@@ -366,6 +384,12 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     if (n["clusters"]) {
       c.clusters = r.integer(n["clusters"], "control.clusters");
       if (c.clusters < 0) r.fail(n["clusters"], "control.clusters", "must not be negative");
+    }
+    if (n["linearized"]) c.linearized = r.boolean(n["linearized"], "control.linearized");
+    if (n["max_linearizations"]) {
+      c.max_linearizations = r.integer(n["max_linearizations"], "control.max_linearizations");
+      if (c.max_linearizations < 1)
+        r.fail(n["max_linearizations"], "control.max_linearizations", "must be at least 1");
     }
     if (n["force_bound"]) {
       c.force_bound = r.number(n["force_bound"], "control.force_bound");
@@ -436,7 +460,18 @@ std::string scene_to_yaml(const Scene& s) {
     << YAML::Value << s.cx << YAML::Key << "cy" << YAML::Value << s.cy << YAML::EndMap;
   e << YAML::Key << "object" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "mesh" << YAML::Value << s.object.mesh.string();
-  e << YAML::Key << "poses" << YAML::Value << s.object.poses.string();
+  if (s.object.track) {
+    e << YAML::Key << "poses" << YAML::Value << "track";
+    if (!s.object.initial_pose.empty())
+      e << YAML::Key << "initial_pose" << YAML::Value << s.object.initial_pose.string();
+    if (!s.object.correspondences.empty())
+      e << YAML::Key << "correspondences" << YAML::Value << s.object.correspondences.string();
+    e << YAML::Key << "tracked_poses" << YAML::Value
+      << (s.object.tracked_poses.empty() ? std::string("automatic")
+                                         : s.object.tracked_poses.string());
+  } else {
+    e << YAML::Key << "poses" << YAML::Value << s.object.poses.string();
+  }
   e << YAML::Key << "scale" << YAML::Value << s.object.scale;
   if (s.object.refine > 0) e << YAML::Key << "refine" << YAML::Value << s.object.refine;
   if (s.object.fracture_pieces > 0)
@@ -492,6 +527,8 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "margin" << YAML::Value << c.margin;
   e << YAML::Key << "force_bound" << YAML::Value << c.force_bound;
   e << YAML::Key << "clusters" << YAML::Value << c.clusters;
+  e << YAML::Key << "linearized" << YAML::Value << c.linearized;
+  e << YAML::Key << "max_linearizations" << YAML::Value << c.max_linearizations;
   e << YAML::EndMap;
   e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "video" << YAML::Value << s.output.video.string();

@@ -18,8 +18,16 @@ Eigen::VectorXd Simulator::position_cotangent(const Vertices&) const {
   no_derivatives(*this, "position_cotangent");
 }
 
+Vertices Simulator::position_tangent(const Eigen::VectorXd&) const {
+  no_derivatives(*this, "position_tangent");
+}
+
 StepVjp Simulator::step_vjp(const SimState&, const StepInput&, const Eigen::VectorXd&) {
   no_derivatives(*this, "step_vjp");
+}
+
+std::unique_ptr<StepLinearization> Simulator::linearize_step(const SimState&, const StepInput&) {
+  no_derivatives(*this, "linearize_step");
 }
 
 }  // namespace pbve

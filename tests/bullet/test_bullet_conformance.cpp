@@ -1,6 +1,7 @@
 // The shared adapter conformance suite on pbve::bullet: cloth, elastic and stiff soft bodies
 // and rigid bodies, each above a ground plane it reaches during the replay checks.
 
+#include <algorithm>
 #include <thread>
 
 #include "bullet/scenes.hpp"
@@ -100,6 +101,37 @@ TEST(BulletPresets, ReplayCloneAndAnchorsAreExact) {
       return std::make_unique<BulletSimulator>(
           pbve::test::icosphere(2, 0.06, Eigen::Vector3d(0, 0, 1)), std::vector<int>{0}, p);
     };
+    c.steps = 10;
+    EXPECT_TRUE(pbve::testing::check_layout(c));
+    EXPECT_TRUE(pbve::testing::check_save_restore(c));
+    EXPECT_TRUE(pbve::testing::check_restore_into_clone(c));
+    EXPECT_TRUE(pbve::testing::check_clone(c));
+    EXPECT_TRUE(pbve::testing::check_anchors(c));
+    EXPECT_TRUE(pbve::testing::check_determinism(c));
+    EXPECT_TRUE(pbve::testing::check_large_step(c));
+  }
+}
+
+// A board made into cloth, simulated as one sheet with its other face and rim attached: replay,
+// clones and anchors stay exact, held by its whole top edge or only by vertices that are not
+// sheet nodes (their carrying nodes then follow the anchors' rigid fit).
+TEST(BulletPresets, ThinSheetReplaysExactly) {
+  const pbve::Mesh board = pbve::refine_mesh(pbve::make_box_mesh(0.3, 0.2, 0.01), 0.05);
+  std::vector<int> top;
+  for (int i = 0; i < board.num_vertices(); ++i)
+    if (board.vertices(i, 1) < 1e-9) top.push_back(i);
+  Params p = Params::preset(Material::cloth);
+  p.planes.push_back(pbve::test::ground_at(0.25));
+  const std::vector<int> nodes = BulletSimulator(board, {}, p).node_vertices();
+  ASSERT_LT(nodes.size(), static_cast<size_t>(board.num_vertices()));
+  std::vector<int> attached_top;
+  for (int i : top)
+    if (!std::binary_search(nodes.begin(), nodes.end(), i)) attached_top.push_back(i);
+  for (const auto& anchors : {top, attached_top}) {
+    SCOPED_TRACE(anchors.size());
+    ConformanceCase c;
+    c.name = "thin_sheet";
+    c.make = [&board, anchors, p] { return std::make_unique<BulletSimulator>(board, anchors, p); };
     c.steps = 10;
     EXPECT_TRUE(pbve::testing::check_layout(c));
     EXPECT_TRUE(pbve::testing::check_save_restore(c));

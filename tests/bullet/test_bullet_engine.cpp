@@ -8,6 +8,7 @@
 #include "bullet/scenes.hpp"
 #include "pbve/bullet/bullet.hpp"
 #include "pbve/core/error.hpp"
+#include "pbve/edit/synth.hpp"
 #include "pbve/engines.hpp"
 
 namespace {
@@ -81,6 +82,14 @@ TEST(BulletEngine, ParameterOverridesReachTheSimulator) {
   // Untouched fields keep the elastic preset.
   EXPECT_EQ(p.volume_stiffness,
             pbve::bullet::Params::preset(pbve::bullet::Material::elastic).volume_stiffness);
+  // A board made into cloth as two layers instead of one sheet.
+  const pbve::Scene two = scene_with("  engine: bullet\n  material: cloth\n  single_sheet: 0\n");
+  auto cloth = pbve::make_engine(
+      recipe(two, pbve::refine_mesh(pbve::make_box_mesh(0.2, 0.2, 0.01), 0.05), {0}));
+  const auto& b = dynamic_cast<pbve::bullet::BulletSimulator&>(*cloth);
+  EXPECT_EQ(b.params().single_sheet, 0);
+  EXPECT_EQ(b.num_nodes(), b.num_vertices());
+  EXPECT_GT(b.num_layer_ties(), 0);
 }
 
 std::string error_of(const std::string& simulation, const pbve::Mesh& mesh) {
@@ -108,6 +117,8 @@ TEST(BulletEngine, InvalidValuesAreInputErrors) {
   EXPECT_NE(msg.find("linear_stiffness"), std::string::npos) << msg;
   msg = error_of("  engine: bullet\n  material: cloth\n  position_iterations: 2.5\n", grid);
   EXPECT_NE(msg.find("expected an integer"), std::string::npos) << msg;
+  msg = error_of("  engine: bullet\n  material: cloth\n  single_sheet: 2\n", grid);
+  EXPECT_NE(msg.find("single_sheet"), std::string::npos) << msg;
   // An open sheet has no volume to keep.
   msg = error_of("  engine: bullet\n  material: elastic\n", grid);
   EXPECT_NE(msg.find("closed mesh"), std::string::npos) << msg;

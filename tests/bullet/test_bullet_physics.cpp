@@ -1,6 +1,7 @@
 // Physics sanity of pbve::bullet against closed-form answers, with tolerances from the
 // integrator (symplectic Euler: v += a h, x += v h) and from Bullet's collision margin.
 
+#include <algorithm>
 #include <cmath>
 
 #include <gtest/gtest.h>
@@ -271,53 +272,136 @@ TEST(BulletCloth, RestsOnTheGroundAtTheMargin) {
         << "vertex " << i;
 }
 
-// A board made into cloth is two layers joined at the rim. Pushing its front layer backwards
-// (no gravity, top edge held) drives that layer through the back one unless the layers are
-// tied; with ties the back layer is pushed along and stays behind.
-TEST(BulletCloth, LayerTiesKeepTheFrontLayerOfABoardInFront) {
-  const pbve::Mesh board = pbve::refine_mesh(pbve::make_box_mesh(0.3, 0.3, 0.01), 0.03);
+// A board made into cloth (refined, 30 x 30 x 1 cm), held at its top edge, split into its
+// front face (towards the camera, z = -5 mm), its back face and the rim between them.
+struct HeldBoard {
+  pbve::Mesh mesh = pbve::refine_mesh(pbve::make_box_mesh(0.3, 0.3, 0.01), 0.03);
   std::vector<int> anchors, front, back;
-  for (int i = 0; i < board.num_vertices(); ++i) {
-    const double y = board.vertices(i, 1), z = board.vertices(i, 2);
-    if (y < 1e-9)
-      anchors.push_back(i);
-    else if (z < 0.0)
-      front.push_back(i);  // the face towards the camera (z = -5 mm)
-    else
-      back.push_back(i);
+  HeldBoard() {
+    for (int i = 0; i < mesh.num_vertices(); ++i) {
+      const double y = mesh.vertices(i, 1), z = mesh.vertices(i, 2);
+      if (y < 1e-9)
+        anchors.push_back(i);
+      else if (z < -0.005 + 1e-9)
+        front.push_back(i);
+      else if (z > 0.005 - 1e-9)
+        back.push_back(i);
+    }
   }
-  auto mean_z = [](const Vertices& x, const std::vector<int>& ids) {
+  static double mean_z(const Vertices& x, const std::vector<int>& ids) {
     double s = 0.0;
     for (int i : ids) s += x(i, 2);
     return s / static_cast<double>(ids.size());
-  };
-  auto push_front = [&](double layer_stiffness) {
-    Params p = Params::preset(Material::cloth);
-    p.gravity.setZero();
-    p.layer_stiffness = layer_stiffness;
-    BulletSimulator sim(board, anchors, p);
+  }
+  // Pushes the front face backwards (no gravity): a force of its weight on every front vertex
+  // towards +z (away from the camera). Over 5 steps (1/6 s) a free node would move 14 cm, far
+  // more than the 1 cm thickness, while the board, held at its top edge, turns by less than 30
+  // degrees. Returns the mean z of the back face minus that of the front face.
+  double push_front(BulletSimulator& sim) const {
     pbve::StepInput in;
     in.control = Eigen::VectorXd::Zero(sim.control_layout().size());
-    // A force of its weight on every front node, towards +z (away from the camera): over 5
-    // steps (1/6 s) a free node would move 14 cm, far more than the 1 cm thickness, while the
-    // board, held at its top edge, turns by less than 30 degrees.
     const Eigen::VectorXd m = sim.control_layout().block_mass;
     for (int i : front) in.control(3 * i + 2) = 9.81 * m(i);
     for (int k = 0; k < 5; ++k) sim.step(in);
     const Vertices x = sim.positions();
     EXPECT_TRUE(x.allFinite());
-    return std::make_pair(sim.num_layer_ties(), mean_z(x, back) - mean_z(x, front));
+    return mean_z(x, back) - mean_z(x, front);
+  }
+};
+
+// Simulated as two layers, the board's front face is pushed through its back face unless the
+// layers are tied; with ties the back layer is pushed along and stays behind.
+TEST(BulletCloth, LayerTiesKeepTheFrontLayerOfABoardInFront) {
+  const HeldBoard board;
+  auto run = [&](double layer_stiffness) {
+    Params p = Params::preset(Material::cloth);
+    p.gravity.setZero();
+    p.single_sheet = 0;
+    p.layer_stiffness = layer_stiffness;
+    BulletSimulator sim(board.mesh, board.anchors, p);
+    EXPECT_EQ(sim.num_nodes(), board.mesh.num_vertices());
+    const double gap = board.push_front(sim);
+    return std::make_pair(sim.num_layer_ties(), gap);
   };
-  const auto [ties, gap_tied] = push_front(1.0);
-  const auto [no_ties, gap_free] = push_front(0.0);
+  const auto [ties, gap_tied] = run(1.0);
+  const auto [no_ties, gap_free] = run(0.0);
   // Every face vertex off the rim is tied once: about half the vertices in pairs.
-  EXPECT_GT(ties, static_cast<int>(front.size()) / 2);
+  EXPECT_GT(ties, static_cast<int>(board.front.size()) / 2);
   EXPECT_EQ(no_ties, 0);
   // Untied, the front layer ends behind the back one. Tied, the layers keep their 1 cm
   // distance (position constraints of stiffness 1), seen along z through the board's turn
   // (cos 30 degrees = 0.87) and the ties' residual stretch: at least half of it remains.
   EXPECT_LT(gap_free, 0.0);
   EXPECT_GT(gap_tied, 0.5 * 0.01);
+}
+
+// Simulated as one sheet (the default), one face is the Bullet cloth and every other vertex
+// follows it at its rest offset: the board keeps its 1 cm thickness exactly and its mass.
+TEST(BulletCloth, ThinBoardIsOneSheetWithItsOtherFaceAttached) {
+  const HeldBoard board;
+  Params p = Params::preset(Material::cloth);
+  p.gravity.setZero();
+  BulletSimulator sim(board.mesh, board.anchors, p);
+  EXPECT_EQ(sim.num_layer_ties(), 0);
+  // The nodes are the vertices of one face (its edge included): all at z = -5 mm or all at +5.
+  const std::vector<int> nodes = sim.node_vertices();
+  EXPECT_EQ(sim.num_nodes(), static_cast<int>(nodes.size()));
+  EXPECT_LT(nodes.size(), static_cast<size_t>(board.mesh.num_vertices() / 2));
+  const double side = board.mesh.vertices(nodes.front(), 2);
+  EXPECT_NEAR(std::abs(side), 0.005, 1e-12);
+  for (int v : nodes) EXPECT_EQ(board.mesh.vertices(v, 2), side) << "node vertex " << v;
+  // The blocks share the board's mass as before: density times the whole surface area.
+  EXPECT_NEAR(sim.control_layout().block_mass.sum(),
+              p.density * pbve::triangle_areas(board.mesh.vertices, board.mesh.triangles).sum(),
+              1e-12);
+  // Pushing the front face backwards moves the whole board: the faces stay 1 cm apart.
+  const double gap = board.push_front(sim);
+  EXPECT_GT(gap, 0.0085);  // 1 cm seen through a turn of less than 30 degrees
+  EXPECT_LT(gap, 0.0100 + 1e-9);
+  const Vertices x = sim.positions();
+  // Vertices straight across the board from each other stay 1 cm apart.
+  const Vertices& x0 = board.mesh.vertices;
+  int across = 0;
+  for (const auto& [u, v] : pbve::opposite_layer_pairs(x0, board.mesh.triangles, 0.03)) {
+    if (std::abs((x0.row(u) - x0.row(v)).norm() - 0.01) > 1e-12) continue;
+    EXPECT_NEAR((x.row(u) - x.row(v)).norm(), 0.01, 1e-12) << "vertices " << u << ", " << v;
+    ++across;
+  }
+  EXPECT_GT(across, static_cast<int>(board.front.size()) / 2);
+  // The pushed board moved: more than its thickness.
+  EXPECT_GT(HeldBoard::mean_z(x, board.front) - HeldBoard::mean_z(board.mesh.vertices, board.front),
+            0.01);
+}
+
+// Held only by vertices that are not sheet nodes (the top edge of the face that is not
+// simulated, and of the rim), the sheet follows them: the nodes that carry them move with the
+// anchors' rigid motion, and the anchors are reported exactly at their targets.
+TEST(BulletCloth, SheetHeldByAttachedVerticesFollowsThem) {
+  const HeldBoard board;
+  const Params p = Params::preset(Material::cloth);
+  const std::vector<int> nodes = BulletSimulator(board.mesh, {}, p).node_vertices();
+  std::vector<int> anchors;
+  for (int i : board.anchors)
+    if (!std::binary_search(nodes.begin(), nodes.end(), i)) anchors.push_back(i);
+  ASSERT_GT(anchors.size(), 3u);
+  BulletSimulator sim(board.mesh, anchors, p);
+  const Vertices rest = board.mesh.vertices;
+  pbve::StepInput in;
+  in.anchor_targets.resize(static_cast<Eigen::Index>(anchors.size()), 3);
+  for (int k = 0; k < 20; ++k) {
+    for (size_t i = 0; i < anchors.size(); ++i)
+      in.anchor_targets.row(static_cast<Eigen::Index>(i)) =
+          rest.row(anchors[i]) + Eigen::RowVector3d(0.005 * (k + 1), 0, 0);
+    sim.step(in);
+    const Vertices x = sim.positions();
+    ASSERT_TRUE(x.allFinite());
+    for (size_t i = 0; i < anchors.size(); ++i)
+      for (int c = 0; c < 3; ++c)
+        ASSERT_EQ(x(anchors[i], c), in.anchor_targets(static_cast<Eigen::Index>(i), c));
+  }
+  // The whole top edge, nodes included, went along: 10 cm to the right.
+  const Vertices x = sim.positions();
+  for (int i : board.anchors) EXPECT_NEAR(x(i, 0) - rest(i, 0), 0.1, 1e-3) << "vertex " << i;
 }
 
 TEST(BulletElastic, BallKeepsItsVolumeUnderItsWeight) {

@@ -61,6 +61,8 @@ TEST(ControlCloth, AdjointAndCentralGradientsOfTheFullEnergyAgree) {
 struct SequenceResult {
   double violation_sum = 0.0;  // percent, summed over frames
   double ratio_median = 0.0;   // median over frames of control force / physical force
+  int simulations = 0;         // window simulations of the optimizer (objective evaluations)
+  int linearized_frames = 0;   // frames whose search ran on linearized dynamics
 };
 
 // Runs frames 1..frames of the swung cloth board, with control (solver) or without.
@@ -74,6 +76,8 @@ SequenceResult run_sequence(const test::ClothScene& scene, const ControlOptions*
     const ControlFrameResult r =
         control ? opt.step(*sim, window) : opt.step_uncontrolled(*sim, window[0]);
     out.violation_sum += scene.violation_pct(sim->positions(), f);
+    out.simulations += r.evaluations;
+    out.linearized_frames += r.linearized ? 1 : 0;
     ratios.push_back(r.physical_force > 0.0 ? r.control_force / r.physical_force : 0.0);
   }
   std::sort(ratios.begin(), ratios.end());
@@ -105,6 +109,34 @@ TEST_P(ClothEverySolver, ControlCutsTheViolationByNinetyPercentWithSmallForces) 
               controlled.ratio_median);
   EXPECT_LE(controlled.violation_sum, 0.1 * free.violation_sum);
   EXPECT_LE(controlled.ratio_median, 0.25);
+  EXPECT_GT(controlled.linearized_frames, 0);  // mass_spring offers linearize_step()
+}
+
+TEST(ControlCloth, NonlinearSearchAlsoCutsTheViolation) {
+  // The same scene and criteria with linearized = false (every evaluation a simulation), the
+  // path of engines with step_vjp() but no linearize_step(); the linearized search needs far
+  // fewer simulations for it.
+  test::ClothScene scene(12, 8);
+  scene.amplitude_deg = 60.0;
+  scene.period_s = 0.7;
+  scene.bend_stiffness = 1e-4;
+  scene.frames = 36;
+  const SequenceResult free = run_sequence(scene, nullptr);
+  ControlOptions o;
+  o.solver = ControlSolver::lbfgs;
+  o.max_evaluations = 20;
+  const SequenceResult linearized = run_sequence(scene, &o);
+  o.linearized = false;
+  const SequenceResult nonlinear = run_sequence(scene, &o);
+  std::printf(
+      "violation sum %.2f%%: linearized %.2f%% with %d simulations, nonlinear %.2f%% with %d\n",
+      free.violation_sum, linearized.violation_sum, linearized.simulations, nonlinear.violation_sum,
+      nonlinear.simulations);
+  EXPECT_EQ(nonlinear.linearized_frames, 0);
+  EXPECT_LE(nonlinear.violation_sum, 0.1 * free.violation_sum);
+  EXPECT_LE(nonlinear.ratio_median, 0.25);
+  EXPECT_LE(linearized.violation_sum, 0.1 * free.violation_sum);
+  EXPECT_LT(linearized.simulations, nonlinear.simulations);
 }
 
 INSTANTIATE_TEST_SUITE_P(Solvers, ClothEverySolver,

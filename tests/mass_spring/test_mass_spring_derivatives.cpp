@@ -273,3 +273,88 @@ TEST(MassSpringDerivatives, IterativeSolverGradientFiveSteps) {
 }
 
 }  // namespace
+
+namespace {
+
+// linearize_step(): its jvp() against central differences of the whole state after one step
+// along a random direction of the state before and of the control; its vjp() against
+// step_vjp(); and <g, jvp(d)> = <vjp(g), d> (the two are transposes of one operator, so they
+// agree to round-off).
+void check_linearization(MassSpringSimulator& sim, const StepInput& in, double eps, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const SimState s0 = sim.save();
+  const int ns = sim.state_dim(), n3 = ns / 2;
+  const Eigen::Index nc = 3 * sim.num_vertices();
+  // Position tangents of metre scale, velocity tangents of metre-per-second scale, control
+  // tangents of newton scale, each scaled so that eps moves the state by about eps metres.
+  VectorXd ds = VectorXd::NullaryExpr(ns, [&] { return n(rng); });
+  VectorXd du = VectorXd::NullaryExpr(nc, [&] { return n(rng); });
+  const double mass = sim.node_masses().mean();
+  du *= mass * 900.0;  // an acceleration of about 900 m/s^2 moves a node ~ 1 m in a frame
+  const auto lin = sim.linearize_step(s0, in);
+  const VectorXd jd = lin->jvp(ds, du);
+  auto after = [&](double t) {
+    SimState s = s0;
+    for (int j = 0; j < ns; ++j) s.values[static_cast<size_t>(j)] += t * ds[j];
+    sim.restore(s);
+    StepInput k = in;
+    if (k.control.size() == 0) k.control = VectorXd::Zero(nc);
+    k.control += t * du;
+    sim.step(k);
+    const SimState out = sim.save();
+    return Eigen::Map<const VectorXd>(out.values.data(), ns).eval();
+  };
+  const VectorXd fd = (after(eps) - after(-eps)) / (2 * eps);
+  EXPECT_LT(relative_error(jd.head(n3), fd.head(n3)), 1e-4) << "positions";
+  EXPECT_LT(relative_error(jd.tail(n3), fd.tail(n3)), 1e-4) << "velocities";
+
+  const VectorXd g = VectorXd::NullaryExpr(ns, [&] { return n(rng); });
+  const pbve::StepVjp lv = lin->vjp(g);
+  const double lhs = g.dot(jd);
+  const double rhs = lv.state.dot(ds) + lv.control.dot(du);
+  EXPECT_LT(std::abs(lhs - rhs), 1e-10 * (std::abs(lhs) + g.norm() * jd.norm()))
+      << lhs << " " << rhs;
+  const pbve::StepVjp sv = sim.step_vjp(s0, in, g);
+  EXPECT_LT(relative_error(lv.state, sv.state), 1e-8);
+  EXPECT_LT(relative_error(lv.control, sv.control), 1e-8);
+  // The control tangent of anchored vertices does not move anything.
+  VectorXd da = VectorXd::Zero(nc);
+  for (int a : sim.anchors()) da.segment<3>(3 * a) = du.segment<3>(3 * a);
+  if (!sim.anchors().empty()) {
+    EXPECT_EQ(lin->jvp(VectorXd(), da).norm(), 0.0);
+  }
+  sim.restore(s0);
+}
+
+TEST(MassSpringLinearization, ClothWithMovingAnchors) {
+  Problem p = cloth_problem(1);
+  check_linearization(*p.sim, p.inputs[0], 1e-6, 21);
+}
+
+TEST(MassSpringLinearization, ElasticSolid) {
+  Problem p = elastic_problem(1);
+  check_linearization(*p.sim, p.inputs[0], 1e-6, 22);
+}
+
+TEST(MassSpringLinearization, ClothOnGroundWithFriction) {
+  Params p = Params::preset(Material::cloth);
+  p.newton_tolerance = 1e-12;
+  pbve::mass_spring::Plane ground;
+  ground.point = Eigen::Vector3d(0, 0, 1.0);
+  ground.normal = Eigen::Vector3d(0, 0, -1);
+  ground.friction = 0.4;
+  p.planes = {ground};
+  p.gravity = Eigen::Vector3d(0, 0, 9.81);
+  MassSpringSimulator sim(pbve::test::grid_mesh(5, 0.2, 1.0), {}, p);
+  StepInput push;
+  push.control = VectorXd::Zero(3 * sim.num_vertices());
+  for (int i = 0; i < sim.num_vertices(); ++i) push.control[3 * i] = 0.01;
+  for (int i = 0; i < 3; ++i) sim.step(push);
+  ASSERT_GT(sim.velocities().col(0).minCoeff(), 2e-3);  // sliding on the plane
+  // Nodes rest about m g / contact_stiffness = 5e-7 m inside the plane, where the contact and
+  // friction terms switch on: the difference step stays well inside that.
+  check_linearization(sim, push, 1e-9, 23);
+}
+
+}  // namespace

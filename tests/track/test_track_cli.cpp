@@ -1,14 +1,18 @@
 // `pbve track` end to end: pose file and overlay written, errors for a missing initial pose and
 // bad correspondences.
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 
 #include <gtest/gtest.h>
 
 #include "pbve/core/footage.hpp"
 #include "pbve/core/pose.hpp"
+#include "pbve/edit/synth.hpp"
+#include "pbve/track/tracker.hpp"
 #include "support/cli.hpp"
 #include "support/test_util.hpp"
 
@@ -86,6 +90,124 @@ TEST_F(TrackCli, BadCorrespondenceLineNamesFileAndLine) {
   EXPECT_NE(r.output.find("pairs.txt:2: expected a number, found 'x'"), std::string::npos)
       << r.output;
   EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+}
+
+TEST_F(TrackCli, ObjectLeavingTheViewForGoodExitsWithStatus1AndLostFrames) {
+  // The board of the fixture's clip, still for 6 frames, then moving right out of the image.
+  const pbve::Mesh mesh = pbve::load_mesh(dir / "object.obj");
+  const pbve::Pose first = *pbve::load_pose_file(dir / "init.txt").poses[0];
+  const cv::Mat background = pbve::make_background(cv::Size(640, 480), 7);
+  pbve::Camera cam;
+  cam.fx = cam.fy = 600;
+  cam.cx = 319.5;
+  cam.cy = 239.5;
+  cam.width = 640;
+  cam.height = 480;
+  {
+    pbve::VideoWriter w(dir / "leaving.mkv", 30.0, cv::Size(640, 480));
+    for (int t = 0; t < 30; ++t) {
+      pbve::Pose p = first;
+      p.translation.x() += t < 6 ? 0.0 : 0.05 * (t - 6);
+      w.write(pbve::render_object(mesh, p, cam, pbve::procedural_texture(0.06), background, 1));
+    }
+    w.close();
+  }
+  const CmdResult r =
+      pbve_cmd("track " + (dir / "leaving.mkv").string() + " " + (dir / "object.obj").string() +
+               " --camera 600,600,319.5,239.5 --initial-pose " + (dir / "init.txt").string() +
+               " -o " + (dir / "tracked.txt").string() + " --quiet");
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("the object left the view at frame"), std::string::npos) << r.output;
+  const pbve::PoseTrack t = pbve::load_pose_file(dir / "tracked.txt");
+  ASSERT_EQ(t.size(), 30);
+  EXPECT_TRUE(t.poses[0]);
+  EXPECT_FALSE(t.poses[29]);
+}
+
+// The synthesized scene with `poses: track` (and `extra` keys after it) instead of its pose file.
+std::string tracking_scene(const fs::path& dir, const std::string& extra) {
+  std::ifstream in(dir / "scene.yaml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  const std::string from = "  poses: poses.txt\n";
+  const size_t at = text.find(from);
+  if (at == std::string::npos) return {};
+  text.replace(at, from.size(), "  poses: track\n" + extra);
+  std::ofstream(dir / "track_scene.yaml") << text;
+  return text;
+}
+
+int line_of(const std::string& text, const std::string& needle) {
+  const size_t at = text.find(needle);
+  return at == std::string::npos
+             ? -1
+             : 1 + static_cast<int>(std::count(text.begin(), text.begin() + at, '\n'));
+}
+
+TEST_F(TrackCli, SceneWithPosesTrackTracksFirstThenEdits) {
+  ASSERT_FALSE(tracking_scene(dir.path(), "  initial_pose: init.txt\n").empty());
+  const CmdResult r = pbve_cmd("edit " + (dir / "track_scene.yaml").string() + " --no-control");
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("tracked poses:"), std::string::npos) << r.output;
+  // The tracked poses next to the edited video, one per frame, close to the true ones.
+  const pbve::PoseTrack tracked = pbve::load_pose_file(dir / "edited.poses.txt");
+  const pbve::PoseTrack truth = pbve::load_pose_file(dir / "poses.txt");
+  const pbve::Mesh mesh = pbve::load_mesh(dir / "object.obj");
+  pbve::Camera cam;
+  cam.fx = cam.fy = 600;
+  cam.cx = 319.5;
+  cam.cy = 239.5;
+  cam.width = 640;
+  cam.height = 480;
+  ASSERT_EQ(tracked.size(), 12);
+  for (int t = 0; t < 12; ++t) {
+    ASSERT_TRUE(tracked.poses[static_cast<size_t>(t)]) << "frame " << t;
+    EXPECT_LE(pbve::reprojection_error_px(mesh, cam, *tracked.poses[static_cast<size_t>(t)],
+                                          *truth.poses[static_cast<size_t>(t)]),
+              5.0)
+        << "frame " << t;
+  }
+  std::ifstream report(dir / "report.json");
+  std::stringstream rs;
+  rs << report.rdbuf();
+  EXPECT_NE(rs.str().find("\"tracking\""), std::string::npos);
+  EXPECT_NE(rs.str().find("\"lost_frames\": []"), std::string::npos) << rs.str().substr(0, 400);
+  EXPECT_TRUE(fs::exists(dir / "edited.mp4"));
+}
+
+TEST_F(TrackCli, PosesTrackWithoutAnInitialPoseNamesTheKeyAndLine) {
+  const std::string text = tracking_scene(dir.path(), "");
+  ASSERT_FALSE(text.empty());
+  const CmdResult r = pbve_cmd("edit " + (dir / "track_scene.yaml").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  const std::string where =
+      "track_scene.yaml:" + std::to_string(line_of(text, "poses: track")) + ": key 'object.poses'";
+  EXPECT_NE(r.output.find(where), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("needs the pose in the first frame"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "edited.mp4"));
+}
+
+TEST_F(TrackCli, TrackingKeysWithoutPosesTrackAreErrors) {
+  std::ifstream in(dir / "scene.yaml");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  const std::string from = "  poses: poses.txt\n";
+  text.replace(text.find(from), from.size(), from + "  initial_pose: init.txt\n");
+  std::ofstream(dir / "bad.yaml") << text;
+  const CmdResult r = pbve_cmd("edit " + (dir / "bad.yaml").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  const std::string where = "bad.yaml:" + std::to_string(line_of(text, "initial_pose")) +
+                            ": key 'object.initial_pose': only used with 'poses: track'";
+  EXPECT_NE(r.output.find(where), std::string::npos) << r.output;
+  // A missing initial pose file names its key.
+  tracking_scene(dir.path(), "  initial_pose: missing.txt\n");
+  const CmdResult m = pbve_cmd("edit " + (dir / "track_scene.yaml").string());
+  EXPECT_EQ(m.status, 1) << m.output;
+  EXPECT_NE(m.output.find("key 'object.initial_pose': initial pose file not found"),
+            std::string::npos)
+      << m.output;
 }
 
 }  // namespace

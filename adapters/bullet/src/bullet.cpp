@@ -22,6 +22,8 @@
 #include <Eigen/LU>
 #include <Eigen/SVD>
 
+#include "thin_sheet.hpp"
+
 static_assert(sizeof(btScalar) == sizeof(double),
               "pbve::bullet expects Bullet built in double precision (bullet-float64)");
 
@@ -178,12 +180,26 @@ struct BulletSimulator::Impl {
   std::vector<std::unique_ptr<btRigidBody>> bodies;
 
   // Soft.
-  Eigen::VectorXd node_mass;  // nominal mass per vertex (also for anchors), kg
-  int layer_ties = 0;         // links between the layers of a thin closed cloth
+  Eigen::VectorXd vertex_mass;  // nominal mass per vertex (also for anchors), kg
+  int layer_ties = 0;           // links between the layers of a thin closed cloth
+  // A thin closed cloth simulated as one sheet (Params::single_sheet); null otherwise. Shared
+  // by clones (it only depends on the recipe).
+  std::shared_ptr<const detail::ThinSheet> sheet;
+  std::vector<int> node_vertex;  // per Bullet node: its vertex (the identity without a sheet)
+  std::vector<int> vertex_node;  // per vertex: its Bullet node, -1 when attached to the sheet
+  Eigen::VectorXd carried_mass;  // per Bullet node: its own mass and its attached vertices' share
+  // Anchored Bullet nodes: `row` is the node's own row of the anchor list, or -1 for a sheet
+  // node that carries an anchored attached vertex and follows the anchors' rigid fit.
+  struct NodeAnchor {
+    int node = 0;
+    int row = -1;
+  };
+  std::vector<NodeAnchor> node_anchors;
   // Rigid.
   std::vector<Piece> pieces;
   std::vector<int> vertex_piece;  // per vertex, -1 when in no triangle
-  Vertices anchor_pos;            // rigid: current anchor positions (#anchors by 3)
+  // Rigid, and soft with a sheet: current anchor positions (#anchors by 3).
+  Vertices anchor_pos;
 
   // Last step's averaged physical forces and their magnitudes.
   Vertices phys;
@@ -195,7 +211,8 @@ struct BulletSimulator::Impl {
 
   void build_world();
   void add_planes();
-  void build_soft();
+  void build_soft(const Impl* like);
+  Vertices node_positions() const;
   void build_pieces();
   void build_rigid(const Impl* like);
   void normalize();
@@ -222,7 +239,7 @@ BulletSimulator::Impl::Impl(std::shared_ptr<const Recipe> r, const Impl* like)
   if (rigid)
     build_rigid(like);
   else
-    build_soft();
+    build_soft(like);
 }
 
 BulletSimulator::Impl::~Impl() {
@@ -293,7 +310,7 @@ void BulletSimulator::Impl::add_planes() {
   }
 }
 
-void BulletSimulator::Impl::build_soft() {
+void BulletSimulator::Impl::build_soft(const Impl* like) {
   const Recipe& rc = *recipe;
   const Params& p = rc.params;
   const Vertices& x = rc.rest;
@@ -312,7 +329,7 @@ void BulletSimulator::Impl::build_soft() {
   }
   double rest_volume = 0.0;
   if (p.material == Material::cloth) {
-    node_mass = p.density * area;
+    vertex_mass = p.density * area;
   } else {
     std::vector<Eigen::Vector3i> tris;
     for (Eigen::Index f = 0; f < t.rows(); ++f) tris.emplace_back(t(f, 0), t(f, 1), t(f, 2));
@@ -322,20 +339,86 @@ void BulletSimulator::Impl::build_soft() {
            " needs a closed mesh enclosing a positive volume (counter-clockwise triangles seen "
            "from outside); enclosed volume " +
            std::to_string(rest_volume) + " m^3");
-    node_mass = (p.density * rest_volume / total_area) * area;
+    vertex_mass = (p.density * rest_volume / total_area) * area;
   }
   // A vertex in no triangle gets the mean mass (it is a free particle).
-  const double mean_mass = node_mass.sum() / std::max(1, n);
+  const double mean_mass = vertex_mass.sum() / std::max(1, n);
   for (int i = 0; i < n; ++i)
-    if (!(node_mass(i) > 0.0)) node_mass(i) = mean_mass > 0.0 ? mean_mass : 1e-3;
+    if (!(vertex_mass(i) > 0.0)) vertex_mass(i) = mean_mass > 0.0 ? mean_mass : 1e-3;
 
-  std::vector<btVector3> xs(static_cast<size_t>(n));
-  std::vector<btScalar> ms(static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i) {
-    xs[static_cast<size_t>(i)] = to_bt(x.row(i).transpose());
-    ms[static_cast<size_t>(i)] = anchored[static_cast<size_t>(i)] ? 0.0 : node_mass(i);
+  // Mean edge length: the default reach of the layer rule.
+  std::set<std::pair<int, int>> edges;
+  auto key = [](int a, int b) { return std::make_pair(std::min(a, b), std::max(a, b)); };
+  for (Eigen::Index f = 0; f < t.rows(); ++f)
+    for (int k = 0; k < 3; ++k) edges.insert(key(t(f, k), t(f, (k + 1) % 3)));
+  double reach = p.layer_distance;
+  if (!(reach > 0.0)) {
+    double total = 0.0;
+    for (const auto& [a, b] : edges) total += (x.row(b) - x.row(a)).norm();
+    reach = edges.empty() ? 0.0 : total / static_cast<double>(edges.size());
   }
-  soft = std::make_unique<btSoftBody>(&world->getWorldInfo(), n, xs.data(), ms.data());
+
+  // A thin closed cloth as one sheet: its nodes are the vertices of one layer.
+  if (like) {
+    sheet = like->sheet;
+  } else if (p.material == Material::cloth && p.single_sheet != 0 && reach > 0.0) {
+    if (auto s = detail::make_thin_sheet(x, t, reach))
+      sheet = std::make_shared<const detail::ThinSheet>(std::move(*s));
+  }
+  if (sheet) {
+    node_vertex = sheet->node_vertex;
+    vertex_node = sheet->vertex_node;
+  } else {
+    node_vertex.resize(static_cast<size_t>(n));
+    std::iota(node_vertex.begin(), node_vertex.end(), 0);
+    vertex_node = node_vertex;
+  }
+  const int nn = static_cast<int>(node_vertex.size());
+  // The node triangles and rest positions.
+  Triangles nt = sheet ? sheet->triangles : t;
+  Vertices nx(nn, 3);
+  for (int i = 0; i < nn; ++i) nx.row(i) = x.row(node_vertex[static_cast<size_t>(i)]);
+
+  // Node masses: each node carries its vertex and its share of the attached vertices.
+  carried_mass.resize(nn);
+  for (int i = 0; i < nn; ++i) carried_mass(i) = vertex_mass(node_vertex[static_cast<size_t>(i)]);
+  std::vector<char> node_anchored(static_cast<size_t>(nn), 0);
+  node_anchors.clear();
+  for (size_t row = 0; row < rc.anchors.size(); ++row) {
+    const int node = vertex_node[static_cast<size_t>(rc.anchors[row])];
+    if (node < 0) continue;
+    node_anchored[static_cast<size_t>(node)] = 1;
+    node_anchors.push_back({node, static_cast<int>(row)});
+  }
+  if (sheet) {
+    for (int v = 0; v < n; ++v) {
+      if (vertex_node[static_cast<size_t>(v)] >= 0) continue;
+      const detail::SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
+      for (int k = 0; k < 3; ++k) {
+        const int node = nt(a.triangle, k);
+        carried_mass(node) += a.bary[k] * vertex_mass(v);
+        // An anchored attached vertex holds the nodes that carry it.
+        if (anchored[static_cast<size_t>(v)] && a.bary[k] > 1e-6 &&
+            !node_anchored[static_cast<size_t>(node)]) {
+          node_anchored[static_cast<size_t>(node)] = 1;
+          node_anchors.push_back({node, -1});
+        }
+      }
+    }
+    std::sort(node_anchors.begin(), node_anchors.end(),
+              [](const NodeAnchor& a, const NodeAnchor& b) { return a.node < b.node; });
+    anchor_pos.resize(static_cast<Eigen::Index>(rc.anchors.size()), 3);
+    for (size_t i = 0; i < rc.anchors.size(); ++i)
+      anchor_pos.row(static_cast<Eigen::Index>(i)) = x.row(rc.anchors[i]);
+  }
+
+  std::vector<btVector3> xs(static_cast<size_t>(nn));
+  std::vector<btScalar> ms(static_cast<size_t>(nn));
+  for (int i = 0; i < nn; ++i) {
+    xs[static_cast<size_t>(i)] = to_bt(nx.row(i).transpose());
+    ms[static_cast<size_t>(i)] = node_anchored[static_cast<size_t>(i)] ? 0.0 : carried_mass(i);
+  }
+  soft = std::make_unique<btSoftBody>(&world->getWorldInfo(), nn, xs.data(), ms.data());
   btSoftBody& sb = *soft;
   sb.m_materials[0]->m_kLST = p.linear_stiffness;
   sb.m_materials[0]->m_kAST = 1.0;
@@ -343,15 +426,14 @@ void BulletSimulator::Impl::build_soft() {
 
   // Edge links (each undirected edge once, in order of first appearance) and faces.
   std::set<std::pair<int, int>> links;
-  auto key = [](int a, int b) { return std::make_pair(std::min(a, b), std::max(a, b)); };
   std::map<std::pair<int, int>, std::vector<int>> edge_opposite;
-  for (Eigen::Index f = 0; f < t.rows(); ++f) {
+  for (Eigen::Index f = 0; f < nt.rows(); ++f) {
     for (int k = 0; k < 3; ++k) {
-      const int a = t(f, k), b = t(f, (k + 1) % 3), c = t(f, (k + 2) % 3);
+      const int a = nt(f, k), b = nt(f, (k + 1) % 3), c = nt(f, (k + 2) % 3);
       if (links.insert(key(a, b)).second) sb.appendLink(a, b);
       edge_opposite[key(a, b)].push_back(c);
     }
-    sb.appendFace(t(f, 0), t(f, 1), t(f, 2));
+    sb.appendFace(nt(f, 0), nt(f, 1), nt(f, 2));
   }
   // Bending links across interior edges, in a deterministic (sorted edge) order.
   if (p.bending_stiffness > 0.0) {
@@ -368,24 +450,17 @@ void BulletSimulator::Impl::build_soft() {
     }
   }
 
-  // Ties between the layers of a thin closed cloth, after the bending links.
-  if (p.material == Material::cloth && p.layer_stiffness > 0.0) {
-    double reach = p.layer_distance;
-    if (!(reach > 0.0)) {
-      double total = 0.0;
-      for (const auto& [a, b] : links) total += (x.row(b) - x.row(a)).norm();
-      reach = links.empty() ? 0.0 : total / static_cast<double>(links.size());
-    }
-    if (reach > 0.0) {
-      btSoftBody::Material* tie = sb.appendMaterial();
-      tie->m_kLST = p.layer_stiffness;
-      tie->m_kAST = 1.0;
-      tie->m_kVST = 1.0;
-      for (const auto& [a, b] : opposite_layer_pairs(x, t, reach)) {
-        if (!links.insert(key(a, b)).second) continue;
-        sb.appendLink(a, b, tie);
-        ++layer_ties;
-      }
+  // Ties between the layers of a thin closed cloth simulated as two layers, after the bending
+  // links.
+  if (!sheet && p.material == Material::cloth && p.layer_stiffness > 0.0 && reach > 0.0) {
+    btSoftBody::Material* tie = sb.appendMaterial();
+    tie->m_kLST = p.layer_stiffness;
+    tie->m_kAST = 1.0;
+    tie->m_kVST = 1.0;
+    for (const auto& [a, b] : opposite_layer_pairs(x, t, reach)) {
+      if (!links.insert(key(a, b)).second) continue;
+      sb.appendLink(a, b, tie);
+      ++layer_ties;
     }
   }
 
@@ -594,17 +669,38 @@ ControlLayout BulletSimulator::Impl::layout() const {
   } else {
     l.space = ControlSpace::vertex_force;
     l.num_blocks = num_vertices;
-    l.block_mass = node_mass;
+    l.block_mass = vertex_mass;
     l.vertex_block.resize(static_cast<size_t>(num_vertices));
     std::iota(l.vertex_block.begin(), l.vertex_block.end(), 0);
   }
   return l;
 }
 
+Vertices BulletSimulator::Impl::node_positions() const {
+  Vertices out(soft->m_nodes.size(), 3);
+  for (int i = 0; i < soft->m_nodes.size(); ++i)
+    out.row(i) = to_eigen(soft->m_nodes[i].m_x).transpose();
+  return out;
+}
+
 Vertices BulletSimulator::Impl::positions() const {
   Vertices out(num_vertices, 3);
   if (!rigid) {
-    for (int i = 0; i < num_vertices; ++i) out.row(i) = to_eigen(soft->m_nodes[i].m_x).transpose();
+    const Vertices x = node_positions();
+    for (Eigen::Index i = 0; i < x.rows(); ++i)
+      out.row(node_vertex[static_cast<size_t>(i)]) = x.row(i);
+    if (sheet) {
+      // Attached vertices at their rest offsets from the sheet, anchored ones at their targets.
+      const Vertices normals = detail::sheet_normals(*sheet, x);
+      for (int v = 0; v < num_vertices; ++v)
+        if (vertex_node[static_cast<size_t>(v)] < 0)
+          out.row(v) = detail::attached_position(*sheet, sheet->attachment[static_cast<size_t>(v)],
+                                                 x, normals)
+                           .transpose();
+      for (size_t i = 0; i < recipe->anchors.size(); ++i)
+        if (vertex_node[static_cast<size_t>(recipe->anchors[i])] < 0)
+          out.row(recipe->anchors[i]) = anchor_pos.row(static_cast<Eigen::Index>(i));
+    }
     return out;
   }
   out = recipe->rest;  // vertices in no piece stay where they are
@@ -626,7 +722,18 @@ Vertices BulletSimulator::Impl::positions() const {
 Vertices BulletSimulator::Impl::velocities() const {
   Vertices out = Vertices::Zero(num_vertices, 3);
   if (!rigid) {
-    for (int i = 0; i < num_vertices; ++i) out.row(i) = to_eigen(soft->m_nodes[i].m_v).transpose();
+    for (int i = 0; i < soft->m_nodes.size(); ++i)
+      out.row(node_vertex[static_cast<size_t>(i)]) = to_eigen(soft->m_nodes[i].m_v).transpose();
+    // Attached vertices: the velocity of their sheet point (the sheet's turning is left out).
+    if (sheet)
+      for (int v = 0; v < num_vertices; ++v) {
+        if (vertex_node[static_cast<size_t>(v)] >= 0) continue;
+        const detail::SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
+        Vector3d vel = Vector3d::Zero();
+        for (int k = 0; k < 3; ++k)
+          vel += a.bary[k] * to_eigen(soft->m_nodes[sheet->triangles(a.triangle, k)].m_v);
+        out.row(v) = vel.transpose();
+      }
     return out;
   }
   const Vertices x = positions();
@@ -673,8 +780,38 @@ void BulletSimulator::Impl::step(const StepInput& in) {
   if (rigid) {
     for (auto& b : bodies) v_start.push_back(to_eigen(b->getLinearVelocity()));
   } else {
-    for (int i = 0; i < num_vertices; ++i) v_start.push_back(to_eigen(soft->m_nodes[i].m_v));
+    for (int i = 0; i < soft->m_nodes.size(); ++i)
+      v_start.push_back(to_eigen(soft->m_nodes[i].m_v));
   }
+  // Soft: the control force on each node (a force on an attached vertex acts on the sheet
+  // point that carries it, shared by that triangle's nodes), and the anchored nodes' targets:
+  // their own anchor's, or the anchors' rigid fit for a node that carries an anchored vertex.
+  std::vector<btVector3> node_force;
+  bool fitted_anchors = false;
+  Eigen::Matrix<double, Eigen::Dynamic, 3> anchor_rest;
+  if (!rigid) {
+    node_force.assign(static_cast<size_t>(soft->m_nodes.size()), btVector3(0, 0, 0));
+    if (has_control)
+      for (int v = 0; v < num_vertices; ++v) {
+        if (anchored[static_cast<size_t>(v)]) continue;
+        const btVector3 f = to_bt(in.control.segment<3>(3 * v));
+        const int node = vertex_node[static_cast<size_t>(v)];
+        if (node >= 0) {
+          node_force[static_cast<size_t>(node)] += f;
+          continue;
+        }
+        const detail::SheetAttachment& a = sheet->attachment[static_cast<size_t>(v)];
+        for (int c = 0; c < 3; ++c)
+          node_force[static_cast<size_t>(sheet->triangles(a.triangle, c))] += f * a.bary[c];
+      }
+    for (const NodeAnchor& a : node_anchors) fitted_anchors |= a.row < 0;
+    if (fitted_anchors) {
+      anchor_rest.resize(na, 3);
+      for (Eigen::Index i = 0; i < na; ++i)
+        anchor_rest.row(i) = rc.rest.row(rc.anchors[static_cast<size_t>(i)]);
+    }
+  }
+  std::vector<btVector3> node_target(node_anchors.size());
 
   Vertices sub(na, 3);
   for (int k = 1; k <= substeps; ++k) {
@@ -704,27 +841,33 @@ void BulletSimulator::Impl::step(const StepInput& in) {
       }
     } else {
       btSoftBody& sb = *soft;
-      for (Eigen::Index j = 0; j < na; ++j) {
-        btSoftBody::Node& nd = sb.m_nodes[rc.anchors[static_cast<size_t>(j)]];
-        nd.m_v = (to_bt(sub.row(j).transpose()) - nd.m_x) / h;
+      Matrix3d r = Matrix3d::Identity();
+      Vector3d o = Vector3d::Zero();
+      if (fitted_anchors) fit_rigid(anchor_rest, sub, Matrix3d::Identity(), 1.0, &r, &o);
+      for (size_t j = 0; j < node_anchors.size(); ++j) {
+        const NodeAnchor& a = node_anchors[j];
+        btSoftBody::Node& nd = sb.m_nodes[a.node];
+        node_target[j] =
+            a.row >= 0
+                ? to_bt(sub.row(a.row).transpose())
+                : to_bt(r * rc.rest.row(node_vertex[static_cast<size_t>(a.node)]).transpose() + o);
+        nd.m_v = (node_target[j] - nd.m_x) / h;
       }
       if (has_control)
-        for (int i = 0; i < num_vertices; ++i)
-          if (!anchored[static_cast<size_t>(i)])
-            sb.addForce(to_bt(in.control.segment<3>(3 * i)), i);
+        for (int i = 0; i < sb.m_nodes.size(); ++i)
+          sb.addForce(node_force[static_cast<size_t>(i)], i);
     }
     world->stepSimulation(h, 0, h);
     if (!rigid) {
       btSoftBody& sb = *soft;
-      for (Eigen::Index j = 0; j < na; ++j) {
-        btSoftBody::Node& nd = sb.m_nodes[rc.anchors[static_cast<size_t>(j)]];
-        const btVector3 x = to_bt(sub.row(j).transpose());
-        nd.m_v = (x - nd.m_q) / h;
-        nd.m_x = x;
+      for (size_t j = 0; j < node_anchors.size(); ++j) {
+        btSoftBody::Node& nd = sb.m_nodes[node_anchors[j].node];
+        nd.m_v = (node_target[j] - nd.m_q) / h;
+        nd.m_x = node_target[j];
       }
     }
   }
-  if (rigid) anchor_pos = target;
+  if (rigid || sheet) anchor_pos = target;
 
   // Physical forces from the change of momentum.
   phys.setZero();
@@ -745,13 +888,15 @@ void BulletSimulator::Impl::step(const StepInput& in) {
       }
     }
   } else {
-    for (int i = 0; i < num_vertices; ++i) {
-      if (anchored[static_cast<size_t>(i)]) continue;
-      const double m = node_mass(i);
+    // Per free node (at its vertex; attached vertices report none, their mass is carried).
+    for (int i = 0; i < soft->m_nodes.size(); ++i) {
+      if (!(soft->m_nodes[i].m_im > 0.0)) continue;
+      const int v = node_vertex[static_cast<size_t>(i)];
+      const double m = carried_mass(i);
       Vector3d f = m * (to_eigen(soft->m_nodes[i].m_v) - v_start[static_cast<size_t>(i)]) / in.dt;
-      if (has_control) f -= in.control.segment<3>(3 * i);
-      phys.row(i) = f.transpose();
-      phys_norm(i) = (m * g).norm() + (f - m * g).norm();
+      f -= to_eigen(node_force[static_cast<size_t>(i)]);
+      phys.row(v) = f.transpose();
+      phys_norm(v) = (m * g).norm() + (f - m * g).norm();
     }
   }
 }
@@ -759,7 +904,8 @@ void BulletSimulator::Impl::step(const StepInput& in) {
 size_t BulletSimulator::Impl::state_size() const {
   if (rigid) return 36 * bodies.size() + 3 * static_cast<size_t>(anchor_pos.rows());
   return 15 * static_cast<size_t>(soft->m_nodes.size()) +
-         3 * static_cast<size_t>(soft->m_faces.size());
+         3 * static_cast<size_t>(soft->m_faces.size()) +
+         (sheet ? 3 * static_cast<size_t>(anchor_pos.rows()) : 0);
 }
 
 SimState BulletSimulator::Impl::save() const {
@@ -795,6 +941,9 @@ SimState BulletSimulator::Impl::save() const {
       put(nd.m_n);
     }
     for (int f = 0; f < soft->m_faces.size(); ++f) put(soft->m_faces[f].m_normal);
+    if (sheet)
+      for (Eigen::Index i = 0; i < anchor_pos.rows(); ++i)
+        for (int c = 0; c < 3; ++c) s.values.push_back(anchor_pos(i, c));
   }
   return s;
 }
@@ -840,6 +989,9 @@ void BulletSimulator::Impl::restore(const SimState& s) {
       nd.m_n = get();
     }
     for (int f = 0; f < soft->m_faces.size(); ++f) soft->m_faces[f].m_normal = get();
+    if (sheet)
+      for (Eigen::Index i = 0; i < anchor_pos.rows(); ++i)
+        for (int c = 0; c < 3; ++c) anchor_pos(i, c) = s.values[at++];
   }
 }
 
@@ -936,13 +1088,21 @@ int BulletSimulator::num_layer_ties() const {
   return m_impl->layer_ties;
 }
 
+int BulletSimulator::num_nodes() const {
+  return m_impl->rigid ? 0 : m_impl->soft->m_nodes.size();
+}
+
+std::vector<int> BulletSimulator::node_vertices() const {
+  return m_impl->rigid ? std::vector<int>{} : m_impl->node_vertex;
+}
+
 int BulletSimulator::num_bodies() const {
   return m_impl->rigid ? static_cast<int>(m_impl->pieces.size()) : 1;
 }
 
 Eigen::VectorXd BulletSimulator::masses() const {
   if (!m_impl->rigid) {
-    Eigen::VectorXd m = m_impl->node_mass;
+    Eigen::VectorXd m = m_impl->vertex_mass;
     for (int a : m_impl->recipe->anchors) m(a) = 0.0;
     return m;
   }

@@ -88,6 +88,7 @@ void Params::validate() const {
   positive(density, "density");
   fraction(linear_stiffness, "linear_stiffness", false, true);
   fraction(bending_stiffness, "bending_stiffness", true, true);
+  if (single_sheet != 0 && single_sheet != 1) bad("single_sheet", "0 or 1", single_sheet);
   fraction(layer_stiffness, "layer_stiffness", true, true);
   non_negative(layer_distance, "layer_distance");
   fraction(shape_matching, "shape_matching", true, true);

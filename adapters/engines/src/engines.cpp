@@ -167,6 +167,8 @@ std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
       field = &p.hull_tolerance;
     else if (key == "position_iterations")
       int_field = &p.position_iterations;
+    else if (key == "single_sheet")
+      int_field = &p.single_sheet;
     store_parameter(r, "bullet", key, line, value, field, int_field);
   }
   try {
@@ -215,7 +217,8 @@ std::vector<std::string> engine_parameters(const std::string& engine) {
     return {"density",         "linear_stiffness", "bending_stiffness", "layer_stiffness",
             "layer_distance",  "shape_matching",   "volume_stiffness",  "pressure",
             "damping",         "friction",         "collision_margin",  "linear_damping",
-            "angular_damping", "restitution",      "hull_tolerance",    "position_iterations"};
+            "angular_damping", "restitution",      "hull_tolerance",    "position_iterations",
+            "single_sheet"};
   return {};
 }
 

@@ -12,6 +12,7 @@
 #include <Eigen/SparseCholesky>
 #include <Eigen/SparseLU>
 
+#include "factor.hpp"
 #include "model.hpp"
 
 namespace pbve::mass_spring {
@@ -569,15 +570,149 @@ struct MassSpringSimulator::Impl {
     tape.valid = true;
   }
 
+  // Transpose of one substep's linearization (from (xn, vn), control and anchors to y), given
+  // the multiplier lam = J_ff^-T G on free rows (zero on anchored rows), Jlam = J_full lam,
+  // G = dL/dy and gv = dL/dv' of the substep's end: writes dL/dxn and dL/dvn into gx_new and
+  // gv_new, and adds dL/d(step-initial anchor positions) to ga0 (w_a0 = d y_a / d a0) and
+  // dL/du to gu.
+  void substep_transpose(const VectorXd& xn, const VectorXd& vn, const VectorXd& y, const Lag& lag,
+                         double h, double w_a0, const VectorXd& G, const VectorXd& gv,
+                         const VectorXd& lam, const VectorXd& Jlam, VectorXd& gx_new,
+                         VectorXd& gv_new, VectorXd& ga0, VectorXd& gu) const {
+    const Model& m = *model;
+    const double alpha = P().damping_alpha, beta = P().damping_beta;
+    const int np = static_cast<int>(P().planes.size());
+    gx_new.resize(3 * N());
+    gv_new.resize(3 * N());
+    // Anchors: dL/dy_a, carried to the step's initial anchor positions.
+    for (size_t k = 0; k < m.anchors.size(); ++k) {
+      const Eigen::Index a = 3 * m.anchors[k];
+      ga0.segment<3>(3 * static_cast<Eigen::Index>(k)) +=
+          w_a0 * (G.segment<3>(a) - Jlam.segment<3>(a));
+    }
+    // Controls enter as -h^2 u in the residual.
+    for (int i = 0; i < m.num_surface; ++i) gu.segment<3>(3 * i) += h * h * lam.segment<3>(3 * i);
+    // gx_new = -gv/h - lam^T dr/dx ; gv_new = -lam^T dr/dv.
+    for (int i = 0; i < N(); ++i) {
+      const Vector3d li = lam.segment<3>(3 * i);
+      gx_new.segment<3>(3 * i) = -gv.segment<3>(3 * i) / h + (1.0 + h * alpha) * m.mass[i] * li;
+      gv_new.segment<3>(3 * i) = h * m.mass[i] * li;
+    }
+    for (size_t sidx = 0; sidx < m.springs.size(); ++sidx) {
+      const Spring& sp = m.springs[sidx];
+      const Vector3d& u = lag.dir[sidx];
+      const Vector3d L = lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a);
+      const Vector3d w = (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
+                         (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
+      // -lam^T d/dx [h beta K(x) (y - x)] = +h beta K lam - h beta d/dx(lam^T K(x) w)|_w.
+      const double uL = u.dot(L), uw = u.dot(w);
+      Vector3d q = (h * beta * sp.k * uL) * u;
+      const Vector3d PL = L - u * uL, Pw = w - u * uw;
+      q -= (h * beta * sp.k * lag.inv_len[sidx]) * (PL * uw + Pw * uL);
+      gx_new.segment<3>(3 * sp.b) += q;
+      gx_new.segment<3>(3 * sp.a) -= q;
+    }
+    for (int p = 0; p < np; ++p) {
+      const Plane& pl = P().planes[static_cast<size_t>(p)];
+      const Vector3d n = pl.normal.normalized();
+      for (int i = 0; i < N(); ++i) {
+        const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+        if (c <= 0.0) continue;
+        const Vector3d li = lam.segment<3>(3 * i);
+        const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+        const Vector3d Pl = li - n * n.dot(li);
+        const double lPw = Pl.dot(w);
+        // Through w = y - x: +h c P lam.
+        gx_new.segment<3>(3 * i) += (h * c) * Pl;
+        // Through c(x, v).
+        const FrictionPartials dc = friction_partials(pl, n, xn, vn, i, c);
+        gx_new.segment<3>(3 * i) -= (h * lPw) * dc.dx;
+        gv_new.segment<3>(3 * i) -= (h * lPw) * dc.dv;
+      }
+    }
+  }
+
+  // Derivatives of the lagged friction coefficient c = mu kc (-phi(x)) / max(|v_t|, eps) of
+  // node i on a plane (unit normal n) with respect to the node's position and velocity.
+  struct FrictionPartials {
+    Vector3d dx, dv;
+  };
+  FrictionPartials friction_partials(const Plane& pl, const Vector3d& n, const VectorXd& xn,
+                                     const VectorXd& vn, int i, double c) const {
+    const Vector3d vi = vn.segment<3>(3 * i);
+    const Vector3d vt = vi - n * n.dot(vi);
+    const double vtn = vt.norm();
+    const double denom = std::max(vtn, P().friction_velocity);
+    FrictionPartials out;
+    out.dx = -(pl.friction * P().contact_stiffness / denom) * n;
+    out.dv = vtn > P().friction_velocity ? Vector3d(-(c / (vtn * vtn)) * vt) : Vector3d::Zero();
+    (void)xn;
+    return out;
+  }
+
+  // The explicit part of one substep's tangent: dr = (dr/dxn) dxn + (dr/dvn) dvn + (dr/du) du
+  // on all nodes (du: 3 per surface vertex, or empty).
+  void substep_explicit_tangent(const VectorXd& xn, const VectorXd& vn, const VectorXd& y,
+                                const Lag& lag, double h, const VectorXd& dxn, const VectorXd& dvn,
+                                const VectorXd& du, VectorXd& dr) const {
+    const Model& m = *model;
+    const double alpha = P().damping_alpha, beta = P().damping_beta;
+    const int np = static_cast<int>(P().planes.size());
+    dr.resize(3 * N());
+    for (int i = 0; i < N(); ++i)
+      dr.segment<3>(3 * i) = -(1.0 + h * alpha) * m.mass[i] * dxn.segment<3>(3 * i) -
+                             h * m.mass[i] * dvn.segment<3>(3 * i);
+    if (du.size() > 0)
+      for (int i = 0; i < m.num_surface; ++i) dr.segment<3>(3 * i) -= h * h * du.segment<3>(3 * i);
+    for (size_t sidx = 0; sidx < m.springs.size(); ++sidx) {
+      const Spring& sp = m.springs[sidx];
+      const Vector3d& u = lag.dir[sidx];
+      const Vector3d D = dxn.segment<3>(3 * sp.b) - dxn.segment<3>(3 * sp.a);
+      const Vector3d w = (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
+                         (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
+      // g = h beta k (u . w) u with w = (y - xn)_b - (y - xn)_a and u = u(xn).
+      const Vector3d du_dir = lag.inv_len[sidx] * (D - u * u.dot(D));
+      const Vector3d dg =
+          (h * beta * sp.k) * (-u.dot(D) * u + w.dot(du_dir) * u + u.dot(w) * du_dir);
+      dr.segment<3>(3 * sp.b) += dg;
+      dr.segment<3>(3 * sp.a) -= dg;
+    }
+    for (int p = 0; p < np; ++p) {
+      const Plane& pl = P().planes[static_cast<size_t>(p)];
+      const Vector3d n = pl.normal.normalized();
+      for (int i = 0; i < N(); ++i) {
+        const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+        if (c <= 0.0) continue;
+        const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+        const Vector3d Pw = w - n * n.dot(w);
+        const Vector3d dx = dxn.segment<3>(3 * i);
+        const FrictionPartials dc = friction_partials(pl, n, xn, vn, i, c);
+        dr.segment<3>(3 * i) += -(h * c) * (dx - n * n.dot(dx)) +
+                                (h * (dc.dx.dot(dx) + dc.dv.dot(dvn.segment<3>(3 * i)))) * Pw;
+      }
+    }
+  }
+
   // ----- adjoint -------------------------------------------------------------------------
+
+  // Makes the tape that of the step from `before` with `in`: kept when it already is (bitwise),
+  // else the step is replayed.
+  void record(const SimState& before, const StepInput& in) {
+    const bool reuse = tape.valid &&
+                       std::memcmp(tape.before.data(), before.values.data(),
+                                   sizeof(double) * before.values.size()) == 0 &&
+                       same_input(tape.in, in);
+    if (reuse) return;
+    std::copy(before.values.begin(), before.values.begin() + x.size(), x.begin());
+    std::copy(before.values.begin() + x.size(), before.values.end(), v.begin());
+    step(in);
+  }
 
   StepVjp vjp(const StepInput& in, const VectorXd& g) {
     const Model& m = *model;
     const int S = P().substeps;
     const double h = in.dt / S;
     const int n3 = 3 * N();
-    const double alpha = P().damping_alpha, beta = P().damping_beta;
-    const int np = static_cast<int>(P().planes.size());
     VectorXd gx = g.head(n3), gv = g.tail(n3);
     VectorXd ga0 = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.anchors.size()));
     VectorXd gu = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.num_surface));
@@ -623,60 +758,8 @@ struct MassSpringSimulator::Impl {
           lam.segment<3>(3 * m.free_nodes[k]) = lf.segment<3>(3 * static_cast<Eigen::Index>(k));
       }
       apply_exact(y, lag, h, lam, Jlam);
-      // Anchors: dL/dy_a, carried to the step's initial anchor positions.
       const double w_a0 = moving ? 1.0 - static_cast<double>(s + 1) / S : 1.0;
-      for (size_t k = 0; k < m.anchors.size(); ++k) {
-        const Eigen::Index a = 3 * m.anchors[k];
-        ga0.segment<3>(3 * static_cast<Eigen::Index>(k)) +=
-            w_a0 * (G.segment<3>(a) - Jlam.segment<3>(a));
-      }
-      // Controls enter as -h^2 u in the residual.
-      for (int i = 0; i < m.num_surface; ++i) gu.segment<3>(3 * i) += h * h * lam.segment<3>(3 * i);
-      // gx_new = -gv/h - lam^T dr/dx ; gv_new = -lam^T dr/dv.
-      for (int i = 0; i < N(); ++i) {
-        const Vector3d li = lam.segment<3>(3 * i);
-        gx_new.segment<3>(3 * i) = -gv.segment<3>(3 * i) / h + (1.0 + h * alpha) * m.mass[i] * li;
-        gv_new.segment<3>(3 * i) = h * m.mass[i] * li;
-      }
-      for (size_t sidx = 0; sidx < m.springs.size(); ++sidx) {
-        const Spring& sp = m.springs[sidx];
-        const Vector3d& u = lag.dir[sidx];
-        const Vector3d L = lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a);
-        const Vector3d w = (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
-                           (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
-        // -lam^T d/dx [h beta K(x) (y - x)] = +h beta K lam - h beta d/dx(lam^T K(x) w)|_w.
-        const double uL = u.dot(L), uw = u.dot(w);
-        Vector3d q = (h * beta * sp.k * uL) * u;
-        const Vector3d PL = L - u * uL, Pw = w - u * uw;
-        q -= (h * beta * sp.k * lag.inv_len[sidx]) * (PL * uw + Pw * uL);
-        gx_new.segment<3>(3 * sp.b) += q;
-        gx_new.segment<3>(3 * sp.a) -= q;
-      }
-      for (int p = 0; p < np; ++p) {
-        const Plane& pl = P().planes[static_cast<size_t>(p)];
-        const Vector3d n = pl.normal.normalized();
-        for (int i = 0; i < N(); ++i) {
-          const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
-          if (c <= 0.0) continue;
-          const Vector3d li = lam.segment<3>(3 * i);
-          const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
-          const Vector3d Pl = li - n * n.dot(li);
-          const double lPw = Pl.dot(w);
-          // Through w = y - x: +h c P lam.
-          gx_new.segment<3>(3 * i) += (h * c) * Pl;
-          // Through c(x): c = mu kc (-phi(x)) / max(|v_t|, eps).
-          const Vector3d vi = vn.segment<3>(3 * i);
-          const Vector3d vt = vi - n * n.dot(vi);
-          const double vtn = vt.norm();
-          const double denom = std::max(vtn, P().friction_velocity);
-          const Vector3d dc_dx = -(pl.friction * P().contact_stiffness / denom) * n;
-          gx_new.segment<3>(3 * i) -= (h * lPw) * dc_dx;
-          if (vtn > P().friction_velocity) {
-            const Vector3d dc_dv = -(c / (vtn * vtn)) * vt;
-            gv_new.segment<3>(3 * i) -= (h * lPw) * dc_dv;
-          }
-        }
-      }
+      substep_transpose(xn, vn, y, lag, h, w_a0, G, gv, lam, Jlam, gx_new, gv_new, ga0, gu);
       gx.swap(gx_new);
       gv.swap(gv_new);
       gx_new.resize(n3);
@@ -691,6 +774,122 @@ struct MassSpringSimulator::Impl {
     out.control = gu;
     return out;
   }
+
+  class Linear;
+};
+
+// The linearization of the step recorded in a copy of the simulator's tape: one factorization
+// of the exact free-free Jacobian per substep, so jvp() and vjp() cost one solve per substep.
+class MassSpringSimulator::Impl::Linear final : public StepLinearization {
+ public:
+  Linear(const Impl& sim, const StepInput& in) : m_sim(sim), m_in(in) {
+    const Model& m = *m_sim.model;
+    const int S = m_sim.P().substeps;
+    m_h = in.dt / S;
+    m_lag.resize(static_cast<size_t>(S));
+    m_factor.resize(static_cast<size_t>(S));
+    for (int s = 0; s < S; ++s) {
+      const auto k = static_cast<size_t>(s);
+      m_sim.make_lag(m_sim.tape.xs[k], m_sim.tape.vs[k], in.control, m_lag[k]);
+      if (m.free_nodes.empty()) continue;
+      m_sim.assemble(m_sim.tape.xs[k + 1], m_lag[k], m_h, true);
+      m_factor[k] = std::make_unique<detail::SymmetricFactor>();
+      if (!m_factor[k]->factorize(m_sim.J))
+        throw std::runtime_error("mass_spring: singular system in linearize_step");
+    }
+  }
+
+  VectorXd jvp(const VectorXd& d_state_before, const VectorXd& d_control) override {
+    const Model& m = *m_sim.model;
+    const int S = m_sim.P().substeps, n3 = 3 * m_sim.N();
+    check_size(d_state_before, 2 * n3, "d_state_before");
+    check_size(d_control, 3 * m.num_surface, "d_control");
+    VectorXd dx = d_state_before.size() ? VectorXd(d_state_before.head(n3)) : VectorXd::Zero(n3);
+    VectorXd dv = d_state_before.size() ? VectorXd(d_state_before.tail(n3)) : VectorXd::Zero(n3);
+    VectorXd da0(3 * static_cast<Eigen::Index>(m.anchors.size()));
+    for (size_t k = 0; k < m.anchors.size(); ++k)
+      da0.segment<3>(3 * static_cast<Eigen::Index>(k)) = dx.segment<3>(3 * m.anchors[k]);
+    VectorXd dr, dy(n3), Jd;
+    for (int s = 0; s < S; ++s) {
+      const auto k = static_cast<size_t>(s);
+      const VectorXd& xn = m_sim.tape.xs[k];
+      const VectorXd& vn = m_sim.tape.vs[k];
+      const VectorXd& y = m_sim.tape.xs[k + 1];
+      m_sim.substep_explicit_tangent(xn, vn, y, m_lag[k], m_h, dx, dv, d_control, dr);
+      // Anchored rows follow their prescribed tangent; free rows solve J_ff dy = -(dr + J_fa dy_a).
+      dy.setZero();
+      const double w_a0 = anchor_weight(s);
+      for (size_t a = 0; a < m.anchors.size(); ++a)
+        dy.segment<3>(3 * m.anchors[a]) = w_a0 * da0.segment<3>(3 * static_cast<Eigen::Index>(a));
+      if (!m.anchors.empty()) {
+        m_sim.apply_exact(y, m_lag[k], m_h, dy, Jd);
+        dr += Jd;
+      }
+      if (m_factor[k]) {
+        const VectorXd dyf = m_factor[k]->solve(m_sim.gather_free(dr));
+        for (size_t f = 0; f < m.free_nodes.size(); ++f)
+          dy.segment<3>(3 * m.free_nodes[f]) = -dyf.segment<3>(3 * static_cast<Eigen::Index>(f));
+      }
+      dv = (dy - dx) / m_h;
+      dx = dy;
+    }
+    VectorXd out(2 * n3);
+    out << dx, dv;
+    return out;
+  }
+
+  StepVjp vjp(const VectorXd& d_state_after) override {
+    const Model& m = *m_sim.model;
+    const int S = m_sim.P().substeps, n3 = 3 * m_sim.N();
+    if (d_state_after.size() != 2 * n3) check_size(d_state_after, 2 * n3, "d_state_after");
+    VectorXd gx = d_state_after.head(n3), gv = d_state_after.tail(n3);
+    VectorXd ga0 = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.anchors.size()));
+    VectorXd gu = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.num_surface));
+    VectorXd G, lam(n3), Jlam, gx_new, gv_new;
+    for (int s = S - 1; s >= 0; --s) {
+      const auto k = static_cast<size_t>(s);
+      const VectorXd& y = m_sim.tape.xs[k + 1];
+      G = gx + gv / m_h;
+      lam.setZero();
+      if (m_factor[k]) {
+        const VectorXd lf = m_factor[k]->solve(m_sim.gather_free(G));
+        for (size_t f = 0; f < m.free_nodes.size(); ++f)
+          lam.segment<3>(3 * m.free_nodes[f]) = lf.segment<3>(3 * static_cast<Eigen::Index>(f));
+      }
+      m_sim.apply_exact(y, m_lag[k], m_h, lam, Jlam);
+      m_sim.substep_transpose(m_sim.tape.xs[k], m_sim.tape.vs[k], y, m_lag[k], m_h,
+                              anchor_weight(s), G, gv, lam, Jlam, gx_new, gv_new, ga0, gu);
+      gx.swap(gx_new);
+      gv.swap(gv_new);
+    }
+    for (size_t a = 0; a < m.anchors.size(); ++a)
+      gx.segment<3>(3 * m.anchors[a]) += ga0.segment<3>(3 * static_cast<Eigen::Index>(a));
+    for (int a : m.anchors) gu.segment<3>(3 * a).setZero();
+    StepVjp out;
+    out.state.resize(2 * n3);
+    out.state << gx, gv;
+    out.control = std::move(gu);
+    return out;
+  }
+
+ private:
+  // d y_anchor / d (anchor position at the step's start) after substep s (0-based).
+  double anchor_weight(int s) const {
+    const int S = m_sim.P().substeps;
+    return m_in.anchor_targets.rows() != 0 ? 1.0 - static_cast<double>(s + 1) / S : 1.0;
+  }
+  static void check_size(const VectorXd& v, Eigen::Index expected, const char* what) {
+    if (v.size() != 0 && v.size() != expected)
+      throw std::invalid_argument(std::string("mass_spring: linearization ") + what + " has " +
+                                  std::to_string(v.size()) + " entries, expected " +
+                                  std::to_string(expected) + " or 0");
+  }
+
+  Impl m_sim;  // a copy holding the recorded trajectory (and scratch for assembly)
+  StepInput m_in;
+  double m_h = 0.0;
+  std::vector<Lag> m_lag;                                          // per substep
+  std::vector<std::unique_ptr<detail::SymmetricFactor>> m_factor;  // per substep, exact J_ff
 };
 
 // ----- public API ------------------------------------------------------------------------
@@ -797,6 +996,14 @@ Eigen::VectorXd MassSpringSimulator::position_cotangent(const Vertices& d_positi
   return g;
 }
 
+Vertices MassSpringSimulator::position_tangent(const Eigen::VectorXd& d_state) const {
+  if (d_state.size() != state_dim())
+    throw std::invalid_argument("mass_spring: position_tangent expects " +
+                                std::to_string(state_dim()) + " entries, got " +
+                                std::to_string(d_state.size()));
+  return Eigen::Map<const Vertices>(d_state.data(), num_vertices(), 3);
+}
+
 StepVjp MassSpringSimulator::step_vjp(const SimState& before, const StepInput& in,
                                       const Eigen::VectorXd& d_state_after) {
   m_impl->validate(in);
@@ -808,16 +1015,19 @@ StepVjp MassSpringSimulator::step_vjp(const SimState& before, const StepInput& i
     throw std::invalid_argument("mass_spring: step_vjp state has " +
                                 std::to_string(before.values.size()) + " values, expected " +
                                 std::to_string(state_dim()));
-  auto& tape = m_impl->tape;
-  const bool reuse = tape.valid &&
-                     std::memcmp(tape.before.data(), before.values.data(),
-                                 sizeof(double) * before.values.size()) == 0 &&
-                     same_input(tape.in, in);
-  if (!reuse) {
-    restore(before);
-    m_impl->step(in);
-  }
+  m_impl->record(before, in);
   return m_impl->vjp(in, d_state_after);
+}
+
+std::unique_ptr<StepLinearization> MassSpringSimulator::linearize_step(const SimState& before,
+                                                                       const StepInput& in) {
+  m_impl->validate(in);
+  if (before.values.size() != static_cast<size_t>(state_dim()))
+    throw std::invalid_argument("mass_spring: linearize_step state has " +
+                                std::to_string(before.values.size()) + " values, expected " +
+                                std::to_string(state_dim()));
+  m_impl->record(before, in);
+  return std::make_unique<Impl::Linear>(*m_impl, in);
 }
 
 int MassSpringSimulator::num_nodes() const {

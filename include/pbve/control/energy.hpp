@@ -57,6 +57,43 @@ double visibility_energy(const Vertices& vertices, const Triangles& triangles,
                          const std::vector<std::uint8_t>& penalized, const Eigen::VectorXd& weights,
                          const VisibilityBarrier& barrier, Vertices* gradient);
 
+/// The occlusion part of the visibility term: a must-stay-hidden vertex p that lies behind an
+/// observed triangle T (on the camera ray through p) must stay behind T's plane. Without it a
+/// back layer pushed through the front one (a thin closed surface simulated as cloth has no
+/// self-collision) shows its unobserved side although every triangle still faces away.
+struct OcclusionPair {
+  int vertex = 0;           ///< p
+  int triangle = 0;         ///< T, a triangle observed in the input frame
+  double rest_depth = 0.0;  ///< depth of p behind T's plane in the reference shape, metres (> 0)
+  double weight = 0.0;      ///< w_p, p's share of the surface area (dimensionless)
+};
+
+/// h = -<n_T, p - a_T> / rest_depth, n_T = T's unit normal: 1 in the reference shape (and any
+/// rigid motion of it), 0 when p reaches T's plane, negative beyond. `grad` (optional) receives
+/// dh / d(p, a_T, b_T, c_T), rows 0 to 3 (1/metres). 0 (gradient 0) for a degenerate T.
+double occlusion_depth(const Vertices& vertices, const Triangles& triangles,
+                       const OcclusionPair& pair, Eigen::Matrix<double, 4, 3>* grad);
+
+/// E_O = sum over pairs of w_p phi(h_p / margin) with the barrier phi of visibility_energy()
+/// (barrier.margin is here a fraction of the rest depth, e.g. 0.5: the penalty starts when p
+/// has come halfway to T's plane). `gradient` (optional) is resized to #V by 3 and receives
+/// dE_O / d vertices (1/metres).
+double occlusion_energy(const Vertices& vertices, const Triangles& triangles,
+                        const std::vector<OcclusionPair>& pairs, const VisibilityBarrier& barrier,
+                        Vertices* gradient);
+
+/// The pairs of one frame: every vertex of a `penalized` triangle that is on no `observed`
+/// triangle, paired with the first observed triangle that the ray from the camera (the origin)
+/// to it meets at positions `current` (#V by 3, camera frame) — none for a vertex nothing
+/// observed hides. rest_depth is measured on `reference` (#V by 3, e.g. the rest shape; any
+/// rigid motion of it gives the same), pairs with a rest depth below `min_depth` metres are
+/// dropped, weights are vertex area shares on `reference`. penalized, observed: #F.
+std::vector<OcclusionPair> occlusion_pairs(const Vertices& current, const Vertices& reference,
+                                           const Triangles& triangles,
+                                           const std::vector<std::uint8_t>& penalized,
+                                           const std::vector<std::uint8_t>& observed,
+                                           double min_depth);
+
 /// sum_b sqrt(|x_b|^2 + eps_b^2) - eps_b over consecutive blocks x_b of `block` entries of x
 /// (x.size() = eps.size() * block). `gradient` (optional) receives d/dx, same size as x.
 double smoothed_norm_sum(const Eigen::VectorXd& x, int block, const Eigen::VectorXd& eps,

@@ -126,6 +126,12 @@ struct ControlOptions {
   /// which makes black-box engines practical, at the price of smoother (less sparse) forces.
   /// Ignored for body wrenches (already 6 numbers per body).
   int clusters = 0;
+  /// Occlusion term of EC (energy.hpp, OcclusionPair): a vertex of a must-stay-hidden triangle
+  /// that an observed triangle hides (on the camera ray through it, at the start of the
+  /// frame) is penalized when it comes closer to that triangle's plane than this fraction of
+  /// its depth behind it in the reference shape (set_reference_shape()). 0 disables the term;
+  /// it needs ControlFrameInput::observed.
+  double occlusion_margin = 0.5;
   /// Penalize interior triangles (Mesh::interior) like unobserved ones. Off by default:
   /// interior faces are drawn in a uniform colour, and the pieces of a fracture must open to
   /// show them; the violation metric does not count them either.
@@ -149,6 +155,20 @@ struct ControlOptions {
   /// bit-identical to the serial path.
   bool parallel = true;
 
+  /// With adjoint gradients and a simulator that offers Simulator::linearize_step(): search on
+  /// the linearized dynamics. Each outer iteration linearizes the window at the current
+  /// controls (one linearization per frame), runs the solver on the energy of that model (each
+  /// evaluation and gradient a product with the linearizations instead of a simulation, at
+  /// most max_evaluations of them), then simulates the solver's point: it is kept when it
+  /// lowers the true energy, else half and a quarter of the move are tried, and the search
+  /// stops when none does or the true energy improves by less than ftol_rel. At most
+  /// max_linearizations outer iterations. Off: every evaluation simulates the window.
+  bool linearized = true;
+  int max_linearizations = 4;
+  /// Linearized search: relative energy tolerance of the solver on the model (at least
+  /// ftol_rel).
+  double model_ftol_rel = 1e-4;
+
   /// Stopping: objective evaluations (NLopt) / iterations (Ipopt), relative tolerance on the
   /// energy, absolute tolerance on the variables (units of block weight), wall-clock limit
   /// in seconds per frame (0 = none).
@@ -166,6 +186,11 @@ struct ControlFrameInput {
   Vertices anchor_targets;
   /// #F, 1 = triangle not observed in this input frame (v_j = 0): it must stay hidden.
   std::vector<std::uint8_t> unobserved;
+  /// #F, 1 = triangle observed in this input frame (v_j = 1), or empty. Needed by the
+  /// occlusion term (ControlOptions::occlusion_margin): the vertices of must-stay-hidden
+  /// triangles that observed ones hide must stay behind them. (Not simply !unobserved: a
+  /// triangle may be neither, e.g. unobserved but too close to edge-on to be penalized.)
+  std::vector<std::uint8_t> observed;
 };
 
 /// Progress reported after every objective evaluation.
@@ -186,10 +211,13 @@ struct ControlCallbacks {
 struct ControlFrameResult {
   ControlStatus status = ControlStatus::converged;
   ControlSolver solver = ControlSolver::slsqp;
-  bool adjoint = false;          ///< the gradient came from step_vjp (else central differences)
-  std::string message;           ///< the solver's own return code / message
-  int iterations = 0;            ///< solver iterations (NLopt: objective evaluations)
+  bool adjoint = false;  ///< the gradient came from step_vjp (else central differences)
+  std::string message;   ///< the solver's own return code / message
+  int iterations = 0;  ///< solver iterations (NLopt: objective evaluations; linearized: model ones)
   int evaluations = 0;           ///< objective evaluations (each one simulates the window)
+  bool linearized = false;       ///< the search ran on linearized dynamics (linearized option)
+  int linearizations = 0;        ///< linearized search: outer iterations
+  int model_evaluations = 0;     ///< linearized search: evaluations of the linearized model
   int gradient_evaluations = 0;  ///< gradients computed
   int active_blocks = 0;         ///< control blocks optimized (per window frame)
   int variables = 0;  ///< optimization variables (active_blocks * block size * W; 3 per cluster)
@@ -268,15 +296,26 @@ class ControlOptimizer {
 
   /// The forces committed by the last step() (f~ of the next frame); empty before the first.
   const Eigen::VectorXd& previous_control() const { return m_previous; }
-  /// Forgets f~ (start of a new sequence).
-  void reset() { m_previous.resize(0); }
+  /// Forgets f~ and the reference shape (start of a new sequence).
+  void reset() {
+    m_previous.resize(0);
+    m_reference.resize(0, 3);
+  }
+  /// The reference shape of the occlusion term (ControlOptions::occlusion_margin): by default
+  /// the simulator's positions at the first step() or step_uncontrolled() after construction
+  /// or reset() — the rest state, where the simulation starts. Set it to use another.
+  void set_reference_shape(const Vertices& positions) { m_reference = positions; }
+  const Vertices& reference_shape() const { return m_reference; }
 
  private:
   Triangles m_triangles;
   std::vector<std::uint8_t> m_interior;
   ControlOptions m_options;
   Eigen::VectorXd m_previous;
+  Vertices m_reference;
   std::vector<std::vector<int>> m_adjacency;
+
+  void capture_reference(const Simulator& sim);
 
   // active_blocks(); when `predicted` is not null and the rule simulates the window without
   // control (ActiveSet::at_risk), it receives the surface positions after each of its frames,

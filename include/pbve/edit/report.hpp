@@ -4,6 +4,7 @@
 /// resolved settings. See DESIGN.md ("Report").
 
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -37,6 +38,14 @@ struct ReportSummary {
   double solve_ms_mean = 0.0;
 };
 
+/// Tracking run before editing (scene key `object.poses: track`).
+struct ReportTracking {
+  std::filesystem::path poses;  ///< the tracked pose file written
+  std::vector<int> lost;        ///< frames whose pose is `lost`
+  double ms_per_frame = 0.0;    ///< tracking time per frame
+  int left_view_at = -1;        ///< first frame of a final lost run out of view, or -1
+};
+
 /// A whole report.
 struct Report {
   std::vector<FrameRecord> frames;
@@ -45,7 +54,8 @@ struct Report {
   bool complete = true;       ///< false when the run stopped early (see stopped_reason)
   int stopped_at = -1;        ///< when incomplete: the first input frame not edited
   std::string stopped_reason;
-  std::string engine;  ///< simulator name
+  std::string engine;                      ///< simulator name
+  std::optional<ReportTracking> tracking;  ///< when the poses were tracked first
 
   ReportSummary summary() const;
 };

@@ -35,8 +35,16 @@ struct SceneAnchors {
 struct SceneObject {
   std::filesystem::path mesh;
   std::filesystem::path poses;  ///< pose file (a single pose for a single picture)
-  double scale = 1.01;          ///< enlargement covering silhouette errors (paper 4.1)
-  double refine = 0.0;          ///< split edges longer than this (mesh units); 0 = off
+  /// `poses: track`: the poses come from pbve::track_footage() run on the footage first, from
+  /// `initial_pose` (a pose file whose first pose is frame 0's) or `correspondences` (a
+  /// correspondence file, pbve::pose_from_correspondence_file()); the tracked poses are written
+  /// to `tracked_poses` (default: the output video's name with `.poses.txt`).
+  bool track = false;
+  std::filesystem::path initial_pose;
+  std::filesystem::path correspondences;
+  std::filesystem::path tracked_poses;
+  double scale = 1.01;  ///< enlargement covering silhouette errors (paper 4.1)
+  double refine = 0.0;  ///< split edges longer than this (mesh units); 0 = off
   /// `fracture: {pieces: N, seed: S}`: cut the (convex) mesh into N Voronoi pieces before
   /// refining (pbve::voronoi_fracture); 0 = off.
   int fracture_pieces = 0;
@@ -89,6 +97,10 @@ struct SceneControl {
   /// Reduced control space: 0 = one force per active vertex; K > 0 = one acceleration per
   /// spatial cluster of at most K clusters (ControlOptions::clusters).
   int clusters = 0;
+  /// Search on the linearized dynamics when the engine offers them (ControlOptions::linearized).
+  bool linearized = true;
+  /// Outer iterations of the linearized search (ControlOptions::max_linearizations).
+  int max_linearizations = 4;
   /// Key -> line of every key given under `control:` (for messages about combinations).
   std::map<std::string, int> given;
 };

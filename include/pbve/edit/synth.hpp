@@ -48,8 +48,18 @@ cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
 struct SynthOptions {
   std::string shape = "board";   ///< board | figurine | ball | statue (Bullet, fractured)
   std::string motion = "swing";  ///< swing | wave | stop | bounce | orbit | still
+  /// Engine of the scene file: empty for the shape's own (mass_spring, the statue bullet), or
+  /// mass_spring | bullet. With bullet, soft bodies get one control acceleration per cluster
+  /// (control.clusters: 16: Bullet has no derivatives, so gradients are central differences),
+  /// and the board Bullet cloth settings that follow its swing (docs/examples.md).
+  std::string engine;
   int frames = 90;
   double fps = 30.0;
+  /// Peak turn of the swing (yaw about the held edge, default 80) or stop (yaw during the move,
+  /// default 20) motions, degrees; 0 = the motion's default.
+  double amplitude_deg = 0.0;
+  /// Turns per second of the swing motion (default 0.9); 0 = the default.
+  double frequency_hz = 0.0;
   int width = 640;
   int height = 480;
   int supersample = 3;

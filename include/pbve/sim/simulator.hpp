@@ -67,6 +67,22 @@ struct StepVjp {
   Eigen::VectorXd control;  ///< dL/du, size ControlLayout::size()
 };
 
+/// The linearization of one step at a point (the step taken from a state `before` with an
+/// input `in`): its Jacobian with respect to the state before the step and the control,
+/// applied forward (jvp) and transposed (vjp). Made by Simulator::linearize_step(); holds what
+/// it needs (e.g. factorizations), so many products cost far less than as many steps. An
+/// optimizer uses it to search on the linearized dynamics between true steps.
+class StepLinearization {
+ public:
+  virtual ~StepLinearization() = default;
+  /// Tangent of the state after the step, d s1 = (ds1/ds0) d_state_before + (ds1/du) d_control
+  /// (sizes Simulator::state_dim() and ControlLayout::size(); either may be empty for zero).
+  virtual Eigen::VectorXd jvp(const Eigen::VectorXd& d_state_before,
+                              const Eigen::VectorXd& d_control) = 0;
+  /// The transpose: given g = dL/ds1, dL/ds0 and dL/du (what Simulator::step_vjp() returns).
+  virtual StepVjp vjp(const Eigen::VectorXd& d_state_after) = 0;
+};
+
 /// The abstract physics engine interface.
 ///
 /// Contract (checked by the conformance suite, include/pbve/testing/simulator_conformance.hpp):
@@ -135,11 +151,22 @@ class Simulator {
   /// The state cotangent corresponding to a cotangent on positions() (#V by 3): for
   /// L(positions(state)), returns dL/dstate given dL/dpositions.
   virtual Eigen::VectorXd position_cotangent(const Vertices& d_positions) const;
+  /// The transpose of position_cotangent(): the tangent of positions() (#V by 3) along a state
+  /// tangent d_state (state_dim() entries), e.g. one from StepLinearization::jvp().
+  virtual Vertices position_tangent(const Eigen::VectorXd& d_state) const;
   /// Vector-Jacobian product of one step: the step taken from `before` with `in` maps state
   /// s0 to s1; given g = dL/ds1, returns dL/ds0 and dL/du. Leaves this simulator in an
   /// unspecified state (callers restore()).
   virtual StepVjp step_vjp(const SimState& before, const StepInput& in,
                            const Eigen::VectorXd& d_state_after);
+
+  /// True when linearize_step() is implemented (implies has_derivatives()).
+  virtual bool has_linearization() const { return false; }
+  /// The linearization of the step taken from `before` with `in` (see StepLinearization):
+  /// independent of this simulator afterwards. Leaves this simulator in an unspecified state
+  /// (callers restore()).
+  virtual std::unique_ptr<StepLinearization> linearize_step(const SimState& before,
+                                                            const StepInput& in);
 };
 
 }  // namespace pbve

@@ -3,22 +3,24 @@
 /// Model-based pose tracking (the preprocessing the paper assumes): the pose of a known mesh
 /// in every frame of footage from a static camera, given its pose in the first frame.
 ///
-/// The tracker follows image corners on the object and knows each one's 3-D point on the mesh
-/// (a ray cast through the pose that found it), so every frame is a perspective-n-point problem
-/// solved robustly (RANSAC, then Levenberg-Marquardt on the inliers):
-/// - corners of a keyframe (an earlier frame with its pose) are followed into the current frame
-///   by pyramidal Lucas-Kanade, started at their projections under the predicted pose
-///   (constant velocity) and kept only when tracking back lands within a pixel of where they
-///   started; keyframes limit drift to the keyframe changes;
-/// - corners of the previous frame (found anew in every frame) are followed the same way, but
-///   only when fewer than 3 x min_inliers keyframe corners survive: they are re-detected on an
-///   occluder too, whereas keyframe corners covered by one fail the backward check;
-/// - corners stay half a window inside the silhouette, and only where the window sees one
-///   surface (no occluding contour of the object itself across it);
-/// - a new keyframe is taken when the keyframe's corners run low or the object turned more
-///   than `keyframe_angle_deg` since it; a frame with too few inliers is `lost` and the
-///   keyframe is kept, so tracking resumes when the object reappears near its last pose.
+/// Each frame's pose minimizes a joint cost, by Gauss-Newton from the corners' RANSAC pose,
+/// coarse to fine (docs/tracking.md has the details and the measured accuracy):
+/// - corners: keyframe corners with their 3-D points on the mesh (a ray cast through the pose
+///   that found them), followed by pyramidal Lucas-Kanade from the keyframe's view warped to
+///   the predicted pose (constant velocity) through the mesh, kept when tracking back lands
+///   within a pixel; their reprojection errors (Huber);
+/// - silhouette: along correspondence lines normal to the projected outer contour, the
+///   posterior of where the image contour lies from foreground/background colour histograms
+///   (region-based, after PWP3D / RBOT / SRT3D), each line weighted by its inverse variance.
+///
+/// Occluders (a hand): pixels where the frame differs from the warped keyframe view, and lines
+/// whose inner side does not look like the object, are left out; the colour statistics learn
+/// only colours the other side does not claim; no keyframe is taken while the silhouette
+/// agrees poorly. A frame whose silhouette agreement is too low is `lost`; ORB descriptors of
+/// the keyframes then search the frame near the last pose (re-detection). Keyframes are kept,
+/// and a view seen before is followed from the one nearest to the first keyframe.
 
+#include <filesystem>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -47,6 +49,39 @@ struct TrackOptions {
   int min_inliers = 12;            ///< fewer inliers: the frame is lost
   double keyframe_angle_deg = 20;  ///< rotation since the keyframe that triggers a new one
   double keyframe_keep = 0.5;      ///< new keyframe when fewer than this fraction survive
+  /// Follow keyframe corners from the keyframe's view warped to the predicted pose through the
+  /// mesh (else from the keyframe image itself).
+  bool warp_keyframe = true;
+
+  // Silhouette (region) term.
+  bool region = true;  ///< refine every pose with the silhouette term (else corners only)
+  /// Pixels per correspondence-line segment, coarse to fine; each scale searches the contour
+  /// within 5 segments either way.
+  std::vector<int> region_scales = {4, 2, 1};
+  int region_iterations = 2;        ///< Gauss-Newton iterations per scale
+  int contour_points = 200;         ///< at most this many correspondence lines
+  double contour_spacing_px = 3.0;  ///< at least this far apart along the contour
+  double region_weight = 0.5;       ///< of a line (inverse variance, pixels^-2) vs. a corner
+  double feature_sigma_px = 1.0;    ///< corner reprojection noise, pixels
+  int colour_band_px = 15;          ///< colour statistics from this far either side of the contour
+  double colour_rate = 0.1;         ///< weight of a frame's colours in the running statistics
+  /// A line whose pixels inside the contour look less like the object than this (mean
+  /// foreground probability) is covered by something else and left out.
+  double occlusion_threshold = 0.5;
+  double colour_update_threshold = 0.65;  ///< object colours only from lines above this
+  /// Occlusion map: the sum over B, G, R of the difference between the frame and the
+  /// keyframe's view of the object warped to the predicted pose (both blurred) above which a
+  /// pixel is covered by something else (0: no map). Corners landing there and lines whose
+  /// inner half lies there by more than occluded_line_fraction are left out.
+  double occlusion_colour_difference = 90.0;
+  double occluded_line_fraction = 0.3;
+  double colour_update_agreement = 0.5;  ///< statistics updated only at this agreement or more
+  double keyframe_agreement = 0.65;      ///< new keyframes only at this agreement or more
+  /// The frame is lost below this silhouette agreement, or below region_only_agreement when
+  /// the corners give no pose.
+  double lost_agreement = 0.2;
+  double region_only_agreement = 0.5;
+  bool redetect = true;  ///< after a loss, search the whole frame for keyframe descriptors (ORB)
 };
 
 /// What happened in one frame.
@@ -57,6 +92,11 @@ struct TrackFrameInfo {
   double rms_px = 0.0;        ///< RMS reprojection error of the inliers, pixels
   bool new_keyframe = false;  ///< this frame became the keyframe
   bool in_view = true;        ///< the predicted object overlaps the image
+  /// Silhouette agreement: the fraction of the contour's correspondence lines (in the image)
+  /// whose colours show the object inside and the background outside within 2 pixels of the
+  /// projected contour (1 without the region term).
+  double agreement = 0.0;
+  bool relocalized = false;  ///< found again by re-detection after a loss
 };
 
 /// Frame-by-frame pose tracker. Not thread-safe; one instance per clip.
@@ -107,6 +147,13 @@ TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& came
 Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
                                const std::vector<Eigen::Vector2d>& pixels, const Camera& camera,
                                double max_rms_px = 5.0);
+
+/// The pose in frame 0 from a correspondence file: one pair per line, `VERTEX u v` (a mesh
+/// vertex index and the pixel where it appears) or `x y z u v` (a point in mesh coordinates and
+/// its pixel); `#` starts a comment. Solved by pose_from_correspondences(). Throws InputError
+/// naming the file (and the line, for a bad line).
+Pose pose_from_correspondence_file(const std::filesystem::path& path, const Mesh& mesh,
+                                   const Camera& camera, double max_rms_px = 5.0);
 
 /// Draws the mesh's silhouette and crease edges (dihedral angle above `crease_deg`) of the
 /// faces turned towards the camera, projected with `pose`, on `image` (BGR, the camera's size).

@@ -60,13 +60,25 @@ struct Params {
   /// Soft: stiffness of the bending links between the opposite vertices of each pair of
   /// adjacent triangles, in [0, 1]; 0 creates no bending links.
   double bending_stiffness = 0.1;
-  /// Cloth: stiffness of the links tying the two layers of a thin closed surface, in [0, 1]
-  /// (0 creates none). A board or a thick sheet made into cloth is two layers joined at the
-  /// rim; Bullet's cloth has no self-collision, so without ties the back layer drifts through
-  /// the front one. Each vertex is linked to the nearest vertex of the opposite layer
-  /// (pbve::opposite_layer_pairs()). The links keep the layers' distance, not their alignment.
+  /// Cloth, 1 or 0: simulate a thin closed surface (a board or a thick sheet made into cloth:
+  /// two layers joined at a rim) as one sheet. The triangles of one layer (the smooth region
+  /// grown from a vertex of a facing pair, pbve::opposite_layer_pairs()) are the Bullet cloth;
+  /// every other vertex (the other layer and the rim) is attached to the closest point of that
+  /// sheet at rest and follows it at its rest offset, in a frame that turns with the sheet, so
+  /// the layers cannot pass through each other and the rim stays across the sheet's edge. The
+  /// sheet's nodes carry the attached vertices' mass. Meshes that do not split into one such
+  /// layer and the rest are simulated as two layers with ties (layer_stiffness). 0 always
+  /// simulates every vertex.
+  int single_sheet = 1;
+  /// Cloth with two simulated layers (single_sheet = 0, or a surface that is not one sheet):
+  /// stiffness of the links tying the two layers of a thin closed surface, in [0, 1] (0 creates
+  /// none). Bullet's cloth has no self-collision, so without ties the back layer drifts
+  /// through the front one. Each vertex is linked to the nearest vertex of the opposite layer
+  /// (pbve::opposite_layer_pairs()). The links keep the layers' distance, not their alignment
+  /// or order: the layers still slide and pass through each other where the cloth folds.
   double layer_stiffness = 0.5;
-  /// Cloth: largest distance between tied layers, metres; 0 uses the mean edge length.
+  /// Cloth: largest distance between the two layers of a thin closed surface (for the sheet and
+  /// for the ties), metres; 0 uses the mean edge length.
   double layer_distance = 0.0;
   /// Soft: shape matching, in [0, 1] (Bullet's kMT): each substep pulls every node this
   /// fraction of the way towards the best rigid motion of the rest shape.
@@ -107,8 +119,8 @@ struct Params {
   std::vector<Plane> planes;
 
   /// Defaults for a material:
-  /// - cloth: 0.3 kg/m^2, links 0.9, bending 0.1, layer ties 0.5, damping 0.01, 4 iterations,
-  ///   margin 2 mm;
+  /// - cloth: 0.3 kg/m^2, links 0.9, bending 0.1, a thin closed surface as one sheet (else
+  ///   layer ties 0.5), damping 0.01, 4 iterations, margin 2 mm;
   /// - elastic: 1000 kg/m^3, links 0.2, bending 0.1, volume 2e4 Pa, shape matching 0.01,
   ///   damping 0.02, 4 iterations;
   /// - stiff: 1000 kg/m^3, links 1, bending 1, volume 2e6 Pa, shape matching 0.5, damping
@@ -126,6 +138,11 @@ struct Params {
 /// vertex_force). Anchored nodes have zero inverse mass and are moved kinematically along the
 /// linear interpolation of their targets over the substeps; after step() they are exactly at
 /// their targets. Their control blocks exist (with the node's nominal mass) but are ignored.
+/// A thin closed cloth simulated as one sheet (Params::single_sheet) has nodes for one layer
+/// only; a force on an attached vertex acts on the sheet point that carries it, an anchored
+/// attached vertex is reported exactly at its target and holds the nodes that carry it (they
+/// follow the least-squares rigid motion of all anchors), and block masses stay each vertex's
+/// own share of the object's mass (a node also carries its attached vertices' shares).
 ///
 /// Rigid material: one body per connected piece (vertices joined by triangles), control = one
 /// force + torque per body at its centre of mass (ControlSpace::body_wrench). A body with an
@@ -137,8 +154,9 @@ struct Params {
 /// Exact replay: every step() starts from a normalized world (all objects removed and re-added
 /// in a fixed order, broadphase reset, so no pair or contact manifold survives from an earlier
 /// step) and a rebuilt node tree, so the result of a step is a function of the saved state and
-/// the step's inputs alone. save() copies the node states (x, q, v, f, normals) or body
-/// transforms and velocities; clone() rebuilds the world from the same recipe and restores.
+/// the step's inputs alone. save() copies the node states (x, q, v, f, normals; for a single
+/// sheet also the anchors' positions) or body transforms and velocities; clone() rebuilds the
+/// world from the same recipe (sharing a single sheet's attachments) and restores.
 class BulletSimulator final : public Simulator {
  public:
   /// @param mesh       topology (triangles); its vertices are not used
@@ -183,8 +201,13 @@ class BulletSimulator final : public Simulator {
   /// mean of the free nodes (one row).
   Vertices centers_of_mass() const;
   /// Cloth: number of links tying the two layers of a thin closed surface (layer_stiffness);
-  /// 0 for other materials or when none were found.
+  /// 0 for other materials, a single sheet, or when none were found.
   int num_layer_ties() const;
+  /// Soft: Bullet nodes (the vertices, or one layer's vertices for a single sheet); rigid: 0.
+  int num_nodes() const;
+  /// Soft: the vertex of each Bullet node, ascending (every vertex without a single sheet);
+  /// rigid: empty.
+  std::vector<int> node_vertices() const;
 
  private:
   BulletSimulator();  // for clone()

@@ -187,12 +187,20 @@ class MassSpringSimulator final : public Simulator {
   bool has_derivatives() const override { return true; }
   int state_dim() const override;
   Eigen::VectorXd position_cotangent(const Vertices& d_positions) const override;
+  Vertices position_tangent(const Eigen::VectorXd& d_state) const override;
   /// Exact VJP through the converged Newton solves (implicit function theorem), one sparse
   /// factorization and solve per substep. When `before` and `in` are bitwise those of the last
   /// step() taken by this object, the recorded trajectory is reused; otherwise the step is
   /// replayed from `before` first.
   StepVjp step_vjp(const SimState& before, const StepInput& in,
                    const Eigen::VectorXd& d_state_after) override;
+  bool has_linearization() const override { return true; }
+  /// The exact linearization of the step (implicit function theorem at the converged Newton
+  /// solves): one sparse factorization of the exact Jacobian per substep up front, then each
+  /// jvp() / vjp() costs one triangular solve pair per substep. Reuses the recorded trajectory
+  /// like step_vjp(), else replays the step from `before`.
+  std::unique_ptr<StepLinearization> linearize_step(const SimState& before,
+                                                    const StepInput& in) override;
 
   /// Surface vertices plus interior lattice nodes.
   int num_nodes() const;
