@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs the Debian packages pbve builds and runs with. Quick when they are present.
-# Usage: scripts/install-deps.sh   (needs root, or sudo)
+# Usage: scripts/install-deps.sh [fuzz]   (needs root, or sudo)
+#   fuzz: also clang++ with libFuzzer and the sanitizer runtimes, and llvm-symbolizer
+#         (the `fuzz` preset, scripts/run-fuzz.sh)
 set -euo pipefail
 
 packages=(
@@ -12,6 +14,15 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   ffmpeg
 )
+for group in "$@"; do
+  case "$group" in
+    fuzz) packages+=(clang libclang-rt-14-dev llvm) ;;
+    *)
+      echo "install-deps: unknown group '$group' (known: fuzz)" >&2
+      exit 2
+      ;;
+  esac
+done
 
 missing=()
 for p in "${packages[@]}"; do

@@ -171,6 +171,9 @@ class MeshBuilder {
     m_mesh.vertices.resize(static_cast<Eigen::Index>(std::max<std::size_t>(vertices, 16)), 3);
     reserve_triangles(triangles);
   }
+  void reserve_vertices(std::size_t vertices) {
+    m_mesh.vertices.resize(static_cast<Eigen::Index>(std::max<std::size_t>(vertices, 16)), 3);
+  }
   void reserve_triangles(std::size_t triangles) {
     m_mesh.triangles.resize(static_cast<Eigen::Index>(std::max<std::size_t>(triangles, 16)), 3);
     m_mesh.triangle_part.reserve(triangles);
@@ -185,11 +188,6 @@ class MeshBuilder {
       m_mesh.vertices.conservativeResize(std::max<Eigen::Index>(16, 2 * m_nv), 3);
     return m_mesh.vertices.data() + 3 * static_cast<std::size_t>(m_nv++);
   }
-  void set_vertex_count(int n) {
-    m_mesh.vertices.resize(n, 3);
-    m_nv = n;
-  }
-  double* vertex(int i) { return m_mesh.vertices.data() + 3 * static_cast<std::size_t>(i); }
 
   void add_triangle(int a, int b, int c, int p, std::uint8_t in) {
     if (m_nf == m_mesh.triangles.rows())
@@ -327,7 +325,7 @@ class ObjReader {
     const long long defined = static_cast<long long>(m_mesh.num_vertices());
     if (idx == 0) fail("vertex index 0 is invalid (OBJ indices start at 1)");
     if (idx < 0) {
-      if (-idx > defined)
+      if (idx < -defined)  // not -idx > defined: -LLONG_MIN overflows
         fail("vertex index " + std::to_string(idx) + " out of range: " + std::to_string(defined) +
              " vertices defined before this line");
       return static_cast<int>(defined + idx);
@@ -451,6 +449,59 @@ bool ply_type_is_integer(PlyType t) {
   return t != PlyType::Float32 && t != PlyType::Float64;
 }
 
+const char* ply_type_name(PlyType t) {
+  switch (t) {
+    case PlyType::Int8:
+      return "char";
+    case PlyType::UInt8:
+      return "uchar";
+    case PlyType::Int16:
+      return "short";
+    case PlyType::UInt16:
+      return "ushort";
+    case PlyType::Int32:
+      return "int";
+    case PlyType::UInt32:
+      return "uint";
+    case PlyType::Float32:
+      return "float";
+    case PlyType::Float64:
+      return "double";
+  }
+  return "?";
+}
+
+/// Whether the integer `v` is representable in the integer type `t`.
+bool ply_integer_in_range(PlyType t, long long v) {
+  switch (t) {
+    case PlyType::Int8:
+      return v >= INT8_MIN && v <= INT8_MAX;
+    case PlyType::UInt8:
+      return v >= 0 && v <= UINT8_MAX;
+    case PlyType::Int16:
+      return v >= INT16_MIN && v <= INT16_MAX;
+    case PlyType::UInt16:
+      return v >= 0 && v <= UINT16_MAX;
+    case PlyType::Int32:
+      return v >= INT32_MIN && v <= INT32_MAX;
+    case PlyType::UInt32:
+      return v >= 0 && v <= UINT32_MAX;
+    default:
+      return true;
+  }
+}
+
+/// A value read from a PLY file, for messages: integers in full, others as %g (never converted
+/// to an integer type, which is undefined for NaN or huge values).
+std::string format_value(double v) {
+  char buf[32];
+  if (v == std::floor(v) && std::abs(v) < 9007199254740992.0)
+    std::snprintf(buf, sizeof buf, "%.0f", v);
+  else
+    std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
 struct PlyProperty {
   std::string name;
   PlyType type = PlyType::Float32;  // the item type for lists
@@ -462,6 +513,7 @@ struct PlyElement {
   std::string name;
   long long count = 0;
   std::vector<PlyProperty> properties;
+  int line = 0;  // of the `element` line in the header
 };
 
 class PlyReader {
@@ -506,7 +558,8 @@ class PlyReader {
       if (eol == std::string_view::npos) eol = m_data.size();
       out = m_data.substr(pos, eol - pos);
       if (!out.empty() && out.back() == '\r') out.remove_suffix(1);
-      pos = eol + 1;
+      // The body starts after the newline, or at the end when the last line has none.
+      pos = std::min(eol + 1, m_data.size());
       ++line;
       return true;
     };
@@ -542,6 +595,11 @@ class PlyReader {
           fail("malformed element line, expected 'element <name> <count>'", line);
         PlyElement e;
         e.name = std::string(tok[1]);
+        e.line = line;
+        if ((e.name == "vertex" || e.name == "face") &&
+            std::any_of(m_elements.begin(), m_elements.end(),
+                        [&](const PlyElement& o) { return o.name == e.name; }))
+          fail("a second '" + e.name + "' element (a PLY mesh has one)", line);
         if (!parse_int(tok[2], e.count) || e.count < 0 || e.count > std::numeric_limits<int>::max())
           fail("malformed element count " + quote_token(tok[2]), line);
         m_elements.push_back(std::move(e));
@@ -602,10 +660,10 @@ class PlyReader {
       const PlyElement& e = m_elements[i];
       if (e.name == "vertex") {
         m_vertex_count = e.count;
-        int found = 0;
-        for (const auto& p : e.properties)
-          if (!p.is_list && (p.name == "x" || p.name == "y" || p.name == "z")) ++found;
-        if (found != 3) fail("the vertex element needs properties x, y and z");
+        for (const char* c : {"x", "y", "z"})
+          if (std::count_if(e.properties.begin(), e.properties.end(),
+                            [&](const PlyProperty& p) { return !p.is_list && p.name == c; }) != 1)
+            fail("the vertex element needs properties x, y and z, once each");
       } else if (e.name == "face") {
         int lists = 0;
         for (const auto& p : e.properties)
@@ -682,6 +740,10 @@ class PlyReader {
         if (ply_type_is_integer(t)) {
           long long iv = 0;
           ok = parse_int(tok, iv);
+          // ASCII values keep to their declared type, as binary ones do by construction.
+          if (ok && !ply_integer_in_range(t, iv))
+            r.fail("value " + std::string(tok) + " out of range for type " + ply_type_name(t), line,
+                   key(element_name, i));
           v = static_cast<double>(iv);
         } else {
           ok = parse_double(tok, v);
@@ -724,6 +786,18 @@ class PlyReader {
     return m_binary ? 0 : src.line;
   }
 
+  /// How many entries of `e` the rest of the data can hold at most (at least one byte per ASCII
+  /// value; the value and list-count sizes in binary), so that storage for the declared count
+  /// is not allocated before the data is there.
+  template <class Src>
+  std::size_t entries_that_fit(const PlyElement& e, const Src& src) const {
+    std::size_t entry = 0;
+    for (const PlyProperty& p : e.properties)
+      entry += m_binary ? ply_type_size(p.is_list ? p.count_type : p.type) : 1;
+    const auto left = static_cast<std::size_t>(src.end - src.p);
+    return std::min(static_cast<std::size_t>(e.count), entry == 0 ? 0 : left / entry);
+  }
+
   template <class Src>
   void read_vertices(const PlyElement& e, Src& src) {
     // Which slot (0, 1, 2 for x, y, z; -1 for anything else) each property fills.
@@ -734,9 +808,9 @@ class PlyReader {
                      : p.name == "y" ? 1
                      : p.name == "z" ? 2
                                      : -1);
-    m_mesh.set_vertex_count(static_cast<int>(e.count));
+    m_mesh.reserve_vertices(entries_that_fit(e, src));
     for (long long i = 0; i < e.count; ++i) {
-      double* xyz = m_mesh.vertex(static_cast<int>(i));
+      double* xyz = m_mesh.add_vertex();
       for (std::size_t k = 0; k < e.properties.size(); ++k) {
         const PlyProperty& p = e.properties[k];
         if (p.is_list) {
@@ -755,7 +829,7 @@ class PlyReader {
 
   template <class Src>
   void read_faces(const PlyElement& e, Src& src) {
-    m_mesh.reserve_triangles(static_cast<std::size_t>(e.count));
+    m_mesh.reserve_triangles(entries_that_fit(e, src));
     std::vector<int> face;
     for (const auto& p : e.properties) m_has_part = m_has_part || (!p.is_list && p.name == "part");
     for (long long i = 0; i < e.count; ++i) {
@@ -766,15 +840,13 @@ class PlyReader {
         if (p.is_list && (p.name == "vertex_indices" || p.name == "vertex_index")) {
           const double n = src.read(p.count_type, *this, e.name, i);
           if (n < 3)
-            fail("face has " + std::to_string(static_cast<long long>(n)) +
-                     " vertices, needs at least 3",
-                 line_of(src), key(e.name, i));
+            fail("face has " + format_value(n) + " vertices, needs at least 3", line_of(src),
+                 key(e.name, i));
           for (long long k = 0; k < static_cast<long long>(n); ++k) {
             const double idx = src.read(p.type, *this, e.name, i);
             if (idx < 0 || idx >= static_cast<double>(m_vertex_count))
-              fail("vertex index " + std::to_string(static_cast<long long>(idx)) +
-                       " out of range: the file has " + std::to_string(m_vertex_count) +
-                       " vertices",
+              fail("vertex index " + format_value(idx) + " out of range: the file has " +
+                       std::to_string(m_vertex_count) + " vertices",
                    line_of(src), key(e.name, i));
             face.push_back(static_cast<int>(idx));
           }
@@ -783,11 +855,13 @@ class PlyReader {
         } else {
           const double v = src.read(p.type, *this, e.name, i);
           if (p.name == "part") {
-            // Ids may be sparse, but not beyond one part per face (plus named parts).
-            const double max_part = static_cast<double>(e.count + m_comment_parts.size());
+            // Ids may be sparse, but not beyond one part per face (plus named parts), and
+            // they are ints.
+            const double max_part = std::min(static_cast<double>(e.count + m_comment_parts.size()),
+                                             static_cast<double>(std::numeric_limits<int>::max()));
             if (v < 0 || v >= max_part || v != std::floor(v))
-              fail("invalid part id " + std::to_string(static_cast<long long>(v)) +
-                       ": expected 0 to " + std::to_string(static_cast<long long>(max_part) - 1),
+              fail("invalid part id " + format_value(v) + ": expected 0 to " +
+                       std::to_string(static_cast<long long>(max_part) - 1),
                    line_of(src), key(e.name, i));
             part = static_cast<int>(v);
           } else if (p.name == "interior") {
@@ -809,6 +883,7 @@ class PlyReader {
 
   template <class Src>
   void skip_element(const PlyElement& e, Src& src) {
+    if (e.properties.empty()) return;  // nothing to read, however many entries
     for (long long i = 0; i < e.count; ++i)
       for (const PlyProperty& p : e.properties) {
         if (p.is_list)
@@ -871,14 +946,22 @@ std::string part_name_of(const Mesh& mesh, int part) {
 
 }  // namespace
 
+Mesh parse_obj(std::string_view text, const std::filesystem::path& name) {
+  return ObjReader(name, text).read();
+}
+
+Mesh parse_ply(std::string_view data, const std::filesystem::path& name) {
+  return PlyReader(name, data).read();
+}
+
 Mesh load_obj(const std::filesystem::path& path) {
   const FileData file(path);
-  return ObjReader(path, file.view()).read();
+  return parse_obj(file.view(), path);
 }
 
 Mesh load_ply(const std::filesystem::path& path) {
   const FileData file(path);
-  return PlyReader(path, file.view()).read();
+  return parse_ply(file.view(), path);
 }
 
 Mesh load_mesh(const std::filesystem::path& path) {

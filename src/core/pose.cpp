@@ -113,8 +113,12 @@ std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
     values.push_back(v);
   }
   if (values.size() == 6) {
-    return Pose::from_rodrigues({values[0], values[1], values[2]},
-                                {values[3], values[4], values[5]});
+    const Eigen::Vector3d rvec(values[0], values[1], values[2]);
+    // Finite components can still have an infinite length (the angle): no rotation.
+    if (!std::isfinite(rvec.stableNorm()))
+      throw InputError("the rotation vector is too long: its length (the angle) overflows", path,
+                       line);
+    return Pose::from_rodrigues(rvec, {values[3], values[4], values[5]});
   }
   if (values.size() != 16)
     throw InputError("expected 16 or 6 numbers or 'lost', found " + std::to_string(values.size()),
@@ -136,6 +140,25 @@ std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
 
 }  // namespace
 
+PoseTrack parse_pose_file(std::string_view text, const std::filesystem::path& name) {
+  PoseTrack track;
+  int line = 0;
+  while (!text.empty()) {
+    ++line;
+    const std::size_t eol = text.find('\n');
+    std::string_view content = text.substr(0, eol);
+    text.remove_prefix(eol == std::string_view::npos ? text.size() : eol + 1);
+    if (const auto hash = content.find('#'); hash != std::string_view::npos)
+      content = content.substr(0, hash);
+    const auto tokens = split_tokens(content);
+    if (tokens.empty()) continue;
+    track.poses.push_back(parse_pose_line(tokens, name, line));
+  }
+  if (track.poses.empty())
+    throw InputError("no poses (the file is empty or holds only comments)", name);
+  return track;
+}
+
 PoseTrack load_pose_file(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) {
@@ -143,22 +166,12 @@ PoseTrack load_pose_file(const std::filesystem::path& path) {
     if (!std::filesystem::exists(path, ec)) throw InputError("pose file not found", path);
     throw InputError("cannot open pose file", path);
   }
-  PoseTrack track;
   std::string text;
-  int line = 0;
-  while (std::getline(in, text)) {
-    ++line;
-    std::string_view content = text;
-    if (const auto hash = content.find('#'); hash != std::string_view::npos)
-      content = content.substr(0, hash);
-    const auto tokens = split_tokens(content);
-    if (tokens.empty()) continue;
-    track.poses.push_back(parse_pose_line(tokens, path, line));
-  }
-  if (in.bad()) throw InputError("read error", path, line);
-  if (track.poses.empty())
-    throw InputError("no poses (the file is empty or holds only comments)", path);
-  return track;
+  char chunk[1 << 14];
+  while (in.read(chunk, sizeof chunk) || in.gcount() > 0)
+    text.append(chunk, static_cast<std::size_t>(in.gcount()));
+  if (in.bad()) throw InputError("read error", path);
+  return parse_pose_file(text, path);
 }
 
 void save_pose_file(const PoseTrack& track, const std::filesystem::path& path) {

@@ -1,6 +1,7 @@
 #include "pbve/edit/scene.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -14,13 +15,15 @@ namespace pbve {
 namespace fs = std::filesystem;
 
 std::string nearest_key(const std::string& key, const std::vector<std::string>& candidates) {
-  auto distance = [](const std::string& a, const std::string& b) {
+  // std::tolower takes the value of an unsigned char: a plain char above 0x7f is negative.
+  const auto lower = [](char c) { return std::tolower(static_cast<unsigned char>(c)); };
+  auto distance = [&](const std::string& a, const std::string& b) {
     std::vector<size_t> prev(b.size() + 1), cur(b.size() + 1);
     for (size_t j = 0; j <= b.size(); ++j) prev[j] = j;
     for (size_t i = 1; i <= a.size(); ++i) {
       cur[0] = i;
       for (size_t j = 1; j <= b.size(); ++j) {
-        const size_t sub = prev[j - 1] + (std::tolower(a[i - 1]) == std::tolower(b[j - 1]) ? 0 : 1);
+        const size_t sub = prev[j - 1] + (lower(a[i - 1]) == lower(b[j - 1]) ? 0 : 1);
         cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, sub});
       }
       std::swap(prev, cur);

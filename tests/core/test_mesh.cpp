@@ -161,6 +161,18 @@ TEST(MeshObj, LoadMeshChoosesByExtensionCaseInsensitive) {
   EXPECT_TRUE(contains(e.message(), ".stl")) << e.what();
 }
 
+TEST(MeshObj, ParseFromMemoryMatchesTheFileReader) {
+  TempDir dir;
+  const std::string text = "g a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\ng b\nf 1 2 4\n";
+  const auto path = write_text(dir / "mem.obj", text);
+  expect_same_mesh(parse_obj(text, "mem.obj"), load_obj(path));
+  // Errors name the given name; the text need not end in a null character.
+  const std::string_view cut(text.data(), text.size() - 3);  // "f 1 2 4" becomes "f 1 2"
+  const InputError e = expect_input_error([&] { parse_obj(cut, "named.obj"); });
+  EXPECT_EQ(e.file(), "named.obj");
+  EXPECT_EQ(e.line(), 8);
+}
+
 // ---------------------------------------------------------------------------------------
 // OBJ bad input: every error names the file and the line
 
@@ -182,6 +194,16 @@ TEST(MeshObjBadInput, NegativeIndexBeyondDefinedVertices) {
   EXPECT_EQ(e.line(), 3);
   EXPECT_TRUE(contains(e.message(), "-3")) << e.what();
   EXPECT_TRUE(contains(e.message(), "2 vertices")) << e.what();
+}
+
+// Found by fuzz_obj (tests/fuzz/corpus/obj/regress_most_negative_index.obj): negating the most
+// negative index overflowed.
+TEST(MeshObjBadInput, MostNegativeIndexIsOutOfRange) {
+  const InputError e = expect_input_error(
+      [&] { parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n", "min.obj"); });
+  EXPECT_EQ(e.line(), 4);
+  EXPECT_TRUE(contains(e.message(), "-9223372036854775808")) << e.what();
+  EXPECT_TRUE(contains(e.message(), "3 vertices")) << e.what();
 }
 
 TEST(MeshObjBadInput, MalformedNumberNamesLineAndToken) {
@@ -498,6 +520,99 @@ TEST(MeshPlyBadInput, AsciiEndOfFileInsideElement) {
   EXPECT_EQ(e.key(), "vertex 2");
   EXPECT_EQ(e.line(), 10);
   EXPECT_TRUE(contains(e.message(), "end of file")) << e.what();
+}
+
+/// An ASCII PLY header of `vertices` x-y-z vertices and `faces` faces (then `body`).
+std::string ascii_ply(const std::string& vertices, const std::string& faces,
+                      const std::string& face_properties, const std::string& body) {
+  return "ply\nformat ascii 1.0\nelement vertex " + vertices +
+         "\nproperty float x\nproperty float y\nproperty float z\nelement face " + faces +
+         "\nproperty list uchar int vertex_indices\n" + face_properties + "end_header\n" + body;
+}
+
+// Found by fuzz_ply (corpus/ply/regress_end_header_without_newline.ply): the body started one
+// byte past the end of the data.
+TEST(MeshPlyBadInput, EndHeaderWithoutNewlineIsTruncatedData) {
+  const std::string s =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\n"
+      "property double y\nproperty double z\nelement face 1\n"
+      "property list uchar int vertex_indices\nend_header";
+  const InputError e = expect_input_error([&] { parse_ply(s, "nl.ply"); });
+  EXPECT_EQ(e.key(), "vertex 0");
+  EXPECT_TRUE(contains(e.message(), "truncated")) << e.what();
+}
+
+// Counts in the header are not trusted for allocation: a small file declaring two billion
+// entries is truncated data, not an attempt to allocate 48 GB.
+TEST(MeshPlyBadInput, CountsBeyondTheDataAreTruncatedData) {
+  const InputError e = expect_input_error(
+      [&] { parse_ply(ascii_ply("2000000000", "1", "", "0 0 0\n1 0 0\n"), "v.ply"); });
+  EXPECT_EQ(e.key(), "vertex 2");
+  EXPECT_TRUE(contains(e.message(), "end of file")) << e.what();
+  std::string s =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+      "property float y\nproperty float z\nelement face 2000000000\n"
+      "property list uchar int vertex_indices\nend_header\n";
+  for (float c : {0.f, 0.f, 0.f, 1.f, 0.f, 0.f, 0.f, 1.f, 0.f}) put<float>(s, c);
+  put<std::uint8_t>(s, 3);
+  for (int v : {0, 1, 2}) put<std::int32_t>(s, v);
+  const InputError e2 = expect_input_error([&] { parse_ply(s, "f.ply"); });
+  EXPECT_EQ(e2.key(), "face 1");
+  EXPECT_TRUE(contains(e2.message(), "truncated")) << e2.what();
+}
+
+// An element without properties takes no space, however many entries it declares.
+TEST(MeshPly, ElementWithoutPropertiesIsSkipped) {
+  const std::string s =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement nothing 2000000000\nelement face 1\n"
+      "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  const Mesh m = parse_ply(s, "empty_element.ply");
+  EXPECT_EQ(m.num_vertices(), 3);
+  EXPECT_EQ(m.triangles.row(0), Eigen::RowVector3i(0, 1, 2));
+}
+
+// ASCII integers outside their declared type were converted to 64-bit integers from doubles
+// (undefined for 2^63) and looped over as list lengths.
+TEST(MeshPlyBadInput, AsciiIntegersOutsideTheirTypeAreErrors) {
+  const std::string vertices = "0 0 0\n1 0 0\n0 1 0\n";
+  const InputError e = expect_input_error([&] {
+    parse_ply(ascii_ply("3", "1", "", vertices + "9223372036854775807 0 1 2\n"), "count.ply");
+  });
+  EXPECT_EQ(e.line(), 13);
+  EXPECT_EQ(e.key(), "face 0");
+  EXPECT_TRUE(contains(e.message(), "9223372036854775807 out of range for type uchar")) << e.what();
+  const InputError e2 = expect_input_error(
+      [&] { parse_ply(ascii_ply("3", "1", "", vertices + "3 0 1 4294967296\n"), "i.ply"); });
+  EXPECT_TRUE(contains(e2.message(), "out of range for type int")) << e2.what();
+}
+
+// A part id read as a float is named as it is (it was converted to an integer first).
+TEST(MeshPlyBadInput, NonIntegerPartIdIsNamedAsRead) {
+  const std::string s =
+      ascii_ply("3", "1", "property float part\n", "0 0 0\n1 0 0\n0 1 0\n3 0 1 2 1e300\n");
+  const InputError e = expect_input_error([&] { parse_ply(s, "part.ply"); });
+  EXPECT_EQ(e.key(), "face 0");
+  EXPECT_TRUE(contains(e.message(), "invalid part id 1e+300")) << e.what();
+}
+
+// A coordinate given twice left another uninitialized; a second vertex element is ambiguous.
+TEST(MeshPlyBadInput, RepeatedCoordinateOrElementIsAnError) {
+  const InputError e = expect_input_error([&] {
+    parse_ply(
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float x\n"
+        "property float y\nend_header\n0 0 0\n",
+        "xx.ply");
+  });
+  EXPECT_TRUE(contains(e.message(), "x, y and z, once each")) << e.what();
+  const InputError e2 = expect_input_error([&] {
+    parse_ply(
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nelement vertex 1\n"
+        "end_header\n",
+        "vv.ply");
+  });
+  EXPECT_EQ(e2.line(), 5);
+  EXPECT_TRUE(contains(e2.message(), "a second 'vertex' element")) << e2.what();
 }
 
 TEST(MeshPlyBadInput, NotAPlyFileAndMissingFaces) {

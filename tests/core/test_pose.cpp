@@ -92,6 +92,28 @@ TEST(PoseFile, ParsesBothFormsLostAndComments) {
   EXPECT_EQ(t.poses[4]->rotation, Eigen::Matrix3d::Identity());
 }
 
+TEST(PoseFile, ParseFromMemoryMatchesTheFileReader) {
+  TempDir dir;
+  const std::string good = "lost\n0 0 0.5 0.1 0.2 3\r\n# end\n";
+  const std::string text = good + "1 0 0 0 0 1 0 0";  // a last line of 8 numbers
+  const PoseTrack from_file = pbve::load_pose_file(write_text(dir / "poses.txt", good));
+  // The text need not end in a null character: the view stops before the bad line.
+  const PoseTrack from_memory =
+      pbve::parse_pose_file(std::string_view(text).substr(0, good.size()), "mem.txt");
+  ASSERT_EQ(from_memory.size(), 2);
+  ASSERT_EQ(from_file.size(), 2);
+  EXPECT_FALSE(from_memory.poses[0]);
+  ASSERT_TRUE(from_memory.poses[1]);
+  EXPECT_EQ(from_memory.poses[1]->matrix(), from_file.poses[1]->matrix());
+  try {
+    pbve::parse_pose_file(text, "named.txt");
+    FAIL() << "expected InputError";
+  } catch (const pbve::InputError& e) {
+    EXPECT_EQ(e.file(), "named.txt");
+    EXPECT_EQ(e.line(), 4);
+  }
+}
+
 TEST(PoseFile, AcceptsRotationWithinTolerance) {
   TempDir dir;
   // Entries rounded to 6 digits, as many tools write them: off by ~5e-7.
@@ -162,6 +184,13 @@ TEST(PoseFileBadInput, NonNumericToken) {
 TEST(PoseFileBadInput, NotFinite) {
   expect_bad("0 0 nan 1 2 3\n", 1, "value 3 is not finite");
   expect_bad(kGood16 + kGood16 + "1 0 0 inf 0 1 0 0 0 0 1 1 0 0 0 1\n", 3, "not finite");
+}
+
+// Breaks fuzz_pose's "poses are finite" expectation without the check
+// (tests/fuzz/corpus/pose/regress_rotation_vector_overflow.txt): the angle was infinite and the
+// rotation NaN, accepted as a pose.
+TEST(PoseFileBadInput, RotationVectorWhoseLengthOverflows) {
+  expect_bad(kGood16 + "1.7e308 1.7e308 1.7e308 0 0 1\n", 2, "rotation vector is too long");
 }
 
 TEST(PoseFileBadInput, NotARotation) {

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Core>
@@ -42,6 +43,12 @@ struct Mesh {
 Mesh load_mesh(const std::filesystem::path& path);
 Mesh load_obj(const std::filesystem::path& path);
 Mesh load_ply(const std::filesystem::path& path);
+
+/// The readers of load_obj() and load_ply() on a file's content held in memory (load_obj and
+/// load_ply map the file and call these). `name` is the file named in error messages; the
+/// data is not copied and need not be null-terminated.
+Mesh parse_obj(std::string_view text, const std::filesystem::path& name = {});
+Mesh parse_ply(std::string_view data, const std::filesystem::path& name = {});
 
 /// Writes OBJ (one `g` per part, interior parts keep their names) — via a temporary file renamed on
 /// success.

@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <optional>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Core>
@@ -45,6 +46,9 @@ inline constexpr double kRotationTolerance = 1e-4;
 /// anything else, non-finite numbers, or a matrix whose 3x3 part is not a rotation
 /// (orthonormal with determinant +1 within kRotationTolerance).
 PoseTrack load_pose_file(const std::filesystem::path& path);
+/// The reader of load_pose_file() on a pose file's content held in memory; `name` is the file
+/// named in error messages.
+PoseTrack parse_pose_file(std::string_view text, const std::filesystem::path& name = {});
 /// Writes a pose file (16 numbers per line, `lost` for unknown), via a temporary name.
 void save_pose_file(const PoseTrack& track, const std::filesystem::path& path);
 
