@@ -60,7 +60,13 @@ std::unique_ptr<pbve::Simulator> start(const pbve::test::ClothScene& scene) {
 
 // adjoint: every evaluation a simulation and a step_vjp (ControlOptions::linearized = false);
 // linearized: the default search on the linearized dynamics (adjoint gradients).
-enum Mode { uncontrolled = 0, adjoint = 1, central_parallel = 2, central_serial = 3, linearized = 4 };
+enum Mode {
+  uncontrolled = 0,
+  adjoint = 1,
+  central_parallel = 2,
+  central_serial = 3,
+  linearized = 4
+};
 
 // Frames first..last in `mode` with at most `evaluations` per frame.
 void run_frames(benchmark::State& state, int first, int last) {

@@ -4,10 +4,13 @@
 /// reader accepts satisfies the contract of its result. A broken expectation aborts (a
 /// finding), whatever the build type.
 
+#include <cstddef>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
+#include <string_view>
 
 #include "pbve/core/error.hpp"
 #include "pbve/core/mesh.hpp"
@@ -42,6 +45,26 @@ inline void check_mesh(const Mesh& m) {
              "triangle indices are in range");
   for (const int p : m.triangle_part) expect(p >= 0 && p < m.num_parts(), "part ids have names");
   for (const auto in : m.interior) expect(in == 0 || in == 1, "interior flags are 0 or 1");
+}
+
+/// The body of a mesh reader's target: `parse(text, name)` either throws an InputError that
+/// names the file, or returns a mesh that check_mesh() and validate_mesh() accept.
+template <class Parse>
+int run_mesh_reader(const std::uint8_t* data, std::size_t size, const std::filesystem::path& name,
+                    Parse parse) {
+  const std::string_view text(reinterpret_cast<const char*>(data), size);
+  Mesh mesh;
+  try {
+    mesh = parse(text, name);
+  } catch (const InputError& e) {
+    check_error(e, name);
+    return 0;
+  }
+  check_mesh(mesh);
+  // What the reader accepts, validation accepts too (it only reports non-fatal findings).
+  const MeshReport report = validate_mesh(mesh, name);
+  expect(report.ok() == report.summary().empty(), "a summary exactly when not ok");
+  return 0;
 }
 
 }  // namespace pbve::fuzz

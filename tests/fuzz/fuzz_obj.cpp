@@ -2,25 +2,15 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <filesystem>
 #include <string_view>
 
 #include "fuzz_check.hpp"
-#include "pbve/core/error.hpp"
 #include "pbve/core/mesh.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  const std::filesystem::path name = "fuzz.obj";
-  const std::string_view text(reinterpret_cast<const char*>(data), size);
-  pbve::Mesh mesh;
-  try {
-    mesh = pbve::parse_obj(text, name);
-  } catch (const pbve::InputError& e) {
-    pbve::fuzz::check_error(e, name);
-    return 0;
-  }
-  pbve::fuzz::check_mesh(mesh);
-  // What the reader accepts, validation accepts too (it only reports non-fatal findings).
-  const pbve::MeshReport report = pbve::validate_mesh(mesh, name);
-  pbve::fuzz::expect(report.ok() == report.summary().empty(), "a summary exactly when not ok");
-  return 0;
+  return pbve::fuzz::run_mesh_reader(data, size, "fuzz.obj",
+                                     [](std::string_view text, const std::filesystem::path& name) {
+                                       return pbve::parse_obj(text, name);
+                                     });
 }
