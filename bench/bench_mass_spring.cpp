@@ -229,7 +229,7 @@ void BM_BoardLinearJvpVjp(benchmark::State& state) {
   const pbve::SimState s0 = b.sim->save();
   const pbve::StepInput in = b.input(b.frame);
   const auto lin = b.sim->linearize_step(s0, in);
-  const Eigen::VectorXd du = Eigen::VectorXd::Constant(3 * b.sim->num_vertices(), 1e-3);
+  const Eigen::VectorXd du = Eigen::VectorXd::Constant(b.sim->control_layout().size(), 1e-3);
   const Eigen::VectorXd g =
       b.sim->position_cotangent(pbve::Vertices::Ones(b.sim->num_vertices(), 3));
   for (auto _ : state) {

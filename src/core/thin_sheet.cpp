@@ -7,7 +7,6 @@
 #include <utility>
 
 #include <Eigen/Geometry>
-#include <unsupported/Eigen/AutoDiff>
 
 namespace pbve {
 
@@ -98,67 +97,94 @@ Vector3d attached_position(const ThinSheet& s, const SheetAttachment& a, const V
   return p + f * a.local;
 }
 
-Eigen::Vector3d attached_position_jacobian(const ThinSheet& s, const SheetAttachment& a,
-                                           const Vertices& nodes, std::vector<int>& involved,
-                                           Eigen::Matrix<double, 3, Eigen::Dynamic>& jacobian) {
+namespace {
+
+Matrix3d skew(const Vector3d& v) {
+  Matrix3d s;
+  s << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
+  return s;
+}
+
+/// d (v / |v|) / dv; the identity where |v| = 0 (attached_position() leaves a zero vector
+/// as it is).
+Matrix3d normalize_jacobian(const Vector3d& v) {
+  const double len = v.norm();
+  if (!(len > 0.0)) return Matrix3d::Identity();
+  const Vector3d u = v / len;
+  return (Matrix3d::Identity() - u * u.transpose()) / len;
+}
+
+}  // namespace
+
+void attached_position_support(const ThinSheet& s, const SheetAttachment& a,
+                               std::vector<int>& involved) {
   // The nodes of the triangles around the attachment triangle's nodes.
-  const auto t = static_cast<Eigen::Index>(a.triangle);
   involved.clear();
   for (int k = 0; k < 3; ++k)
-    for (int f : s.node_triangles[static_cast<size_t>(s.triangles(t, k))])
+    for (int f : s.node_triangles[static_cast<size_t>(s.triangles(a.triangle, k))])
       for (int c = 0; c < 3; ++c) involved.push_back(s.triangles(f, c));
   std::sort(involved.begin(), involved.end());
   involved.erase(std::unique(involved.begin(), involved.end()), involved.end());
+}
+
+Eigen::Vector3d attached_position_jacobian(const ThinSheet& s, const SheetAttachment& a,
+                                           const Vertices& nodes, std::vector<int>& involved,
+                                           Eigen::Matrix<double, 3, Eigen::Dynamic>& jacobian) {
+  attached_position_support(s, a, involved);
+  const auto t = static_cast<Eigen::Index>(a.triangle);
   const auto m = static_cast<Eigen::Index>(involved.size());
   auto local = [&](int node) {
     return static_cast<Eigen::Index>(std::lower_bound(involved.begin(), involved.end(), node) -
                                      involved.begin());
   };
-  // attached_position() in forward-mode automatic differentiation over those 3m coordinates.
-  using AD = Eigen::AutoDiffScalar<Eigen::VectorXd>;
-  using V3 = Eigen::Matrix<AD, 3, 1>;
-  std::vector<V3> x(static_cast<size_t>(m));
-  for (Eigen::Index i = 0; i < m; ++i)
-    for (int d = 0; d < 3; ++d)
-      x[static_cast<size_t>(i)][d] =
-          AD(nodes(involved[static_cast<size_t>(i)], d), 3 * m, 3 * i + d);
-  auto node_normal = [&](int node) {
-    V3 n = V3::Zero();
-    for (int f : s.node_triangles[static_cast<size_t>(node)]) {
-      const V3& p0 = x[static_cast<size_t>(local(s.triangles(f, 0)))];
-      const V3& p1 = x[static_cast<size_t>(local(s.triangles(f, 1)))];
-      const V3& p2 = x[static_cast<size_t>(local(s.triangles(f, 2)))];
-      n += (p1 - p0).cross(p2 - p0);
-    }
-    const AD len = n.norm();
-    if (len.value() > 0.0) n /= len;
-    return n;
-  };
-  V3 p = V3::Zero(), n = V3::Zero();
+  jacobian.setZero(3, 3 * m);
+  auto block = [&](int node) { return jacobian.middleCols<3>(3 * local(node)); };
+
+  // The chain of attached_position(), forward: area normals c_k of the triangle's nodes,
+  // their unit normals, the interpolated normal n, the first tangent t1, then
+  // q = p + l0 t1 + l1 (n x t1) + l2 n.
+  const int tri[3] = {s.triangles(t, 0), s.triangles(t, 1), s.triangles(t, 2)};
+  Vector3d area[3], n_raw = Vector3d::Zero(), p = Vector3d::Zero();
   for (int k = 0; k < 3; ++k) {
-    const int node = s.triangles(t, k);
-    p += AD(a.bary[k]) * x[static_cast<size_t>(local(node))];
-    n += AD(a.bary[k]) * node_normal(node);
+    area[k].setZero();
+    for (int f : s.node_triangles[static_cast<size_t>(tri[k])]) {
+      const Vector3d p0 = row3(nodes, s.triangles(f, 0));
+      area[k] += (row3(nodes, s.triangles(f, 1)) - p0).cross(row3(nodes, s.triangles(f, 2)) - p0);
+    }
+    const double len = area[k].norm();
+    n_raw += a.bary[k] * (len > 0.0 ? Vector3d(area[k] / len) : area[k]);
+    p += a.bary[k] * row3(nodes, tri[k]);
   }
-  const AD nl = n.norm();
-  if (nl.value() > 0.0) n /= nl;
-  const V3 e = x[static_cast<size_t>(local(s.triangles(t, 1)))] -
-               x[static_cast<size_t>(local(s.triangles(t, 0)))];
-  V3 t1 = e - e.dot(n) * n;
-  const AD tl = t1.norm();
-  if (tl.value() > 0.0) t1 /= tl;
-  const V3 t2 = n.cross(t1);
-  const V3 q = p + AD(a.local[0]) * t1 + AD(a.local[1]) * t2 + AD(a.local[2]) * n;
-  jacobian.resize(3, 3 * m);
-  Vector3d out;
-  for (int d = 0; d < 3; ++d) {
-    out[d] = q[d].value();
-    if (q[d].derivatives().size() == 3 * m)
-      jacobian.row(d) = q[d].derivatives().transpose();
-    else
-      jacobian.row(d).setZero();
+  const double n_len = n_raw.norm();
+  const Vector3d n = n_len > 0.0 ? Vector3d(n_raw / n_len) : n_raw;
+  const Vector3d e = row3(nodes, tri[1]) - row3(nodes, tri[0]);
+  const Vector3d t1_raw = e - e.dot(n) * n;
+  const double t1_len = t1_raw.norm();
+  const Vector3d t1 = t1_len > 0.0 ? Vector3d(t1_raw / t1_len) : t1_raw;
+  const Vector3d q = p + a.local[0] * t1 + a.local[1] * n.cross(t1) + a.local[2] * n;
+
+  // Backward: dq/dt1, then dq/de and dq/dn (t1 depends on both), then through the normals.
+  const Matrix3d dq_dt1 = a.local[0] * Matrix3d::Identity() + a.local[1] * skew(n);
+  const Matrix3d dt1 = normalize_jacobian(t1_raw);
+  const Matrix3d dq_de = dq_dt1 * dt1 * (Matrix3d::Identity() - n * n.transpose());
+  const Matrix3d dq_dn = a.local[2] * Matrix3d::Identity() - a.local[1] * skew(t1) +
+                         dq_dt1 * dt1 * (-(n * e.transpose()) - e.dot(n) * Matrix3d::Identity());
+  const Matrix3d dq_dnraw = dq_dn * normalize_jacobian(n_raw);
+  block(tri[0]) -= dq_de;
+  block(tri[1]) += dq_de;
+  for (int k = 0; k < 3; ++k) {
+    block(tri[k]) += a.bary[k] * Matrix3d::Identity();
+    // c = (p1 - p0) x (p2 - p0): dc/dp0 = [p2 - p1]x, dc/dp1 = -[p2 - p0]x, dc/dp2 = [p1 - p0]x.
+    const Matrix3d dq_darea = a.bary[k] * dq_dnraw * normalize_jacobian(area[k]);
+    for (int f : s.node_triangles[static_cast<size_t>(tri[k])]) {
+      const int i0 = s.triangles(f, 0), i1 = s.triangles(f, 1), i2 = s.triangles(f, 2);
+      const Vector3d p0 = row3(nodes, i0), p1 = row3(nodes, i1), p2 = row3(nodes, i2);
+      block(i0) += dq_darea * skew(p2 - p1);
+      block(i1) -= dq_darea * skew(p2 - p0);
+      block(i2) += dq_darea * skew(p1 - p0);
+    }
   }
-  return out;
+  return q;
 }
 
 std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& triangles,

@@ -173,6 +173,16 @@ CholeskyAnalysis::CholeskyAnalysis(const Eigen::SparseMatrix<double>& pattern)
   m.common.method[0].ordering = CHOLMOD_AMD;
   m.common.method[1].ordering = CHOLMOD_METIS;
   m.common.postorder = 1;
+  // Coarser supernodes than CHOLMOD's defaults (columns {4, 16, 48}, fill {0.8, 0.1, 0.05}):
+  // each supernode costs a few library calls (and an OpenMP region) whatever its size, which
+  // dominates on the small systems of a frame-rate simulation; more explicit zeros in
+  // fewer, larger dense blocks are cheaper there (measured in bench_mass_spring, BM_Board*).
+  m.common.nrelax[0] = 16;
+  m.common.nrelax[1] = 64;
+  m.common.nrelax[2] = 192;
+  m.common.zrelax[0] = 0.8;
+  m.common.zrelax[1] = 0.4;
+  m.common.zrelax[2] = 0.2;
   SerialOpenMP serial;
   cholmod_sparse S = view(m.pattern);
   m.supernodal = cholmod_analyze(&S, &m.common);

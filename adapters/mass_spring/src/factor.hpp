@@ -5,7 +5,9 @@
 
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
@@ -62,6 +64,35 @@ class SymmetricFactor {
   SparseCholesky m_llt, m_ldlt;
   Eigen::SparseLU<Eigen::SparseMatrix<double>> m_lu;
   Used m_used = Used::none;
+};
+
+/// Factorizations kept for reuse, any thread: a factorization's CHOLMOD workspace and factor
+/// storage are allocated on its first use, so short-lived users (step linearizations, made
+/// several times per frame) take one here and give it back. The numeric result does not depend
+/// on the object's history (every factorization overwrites the whole factor).
+class FactorPool {
+ public:
+  std::unique_ptr<SymmetricFactor> take(std::shared_ptr<const CholeskyAnalysis> analysis) {
+    {
+      const std::lock_guard<std::mutex> lock(m_mutex);
+      if (!m_free.empty()) {
+        std::unique_ptr<SymmetricFactor> f = std::move(m_free.back());
+        m_free.pop_back();
+        return f;
+      }
+    }
+    return std::make_unique<SymmetricFactor>(std::move(analysis));
+  }
+  void give(std::unique_ptr<SymmetricFactor> factor) {
+    if (!factor) return;
+    const std::lock_guard<std::mutex> lock(m_mutex);
+    if (m_free.size() < max_kept) m_free.push_back(std::move(factor));
+  }
+
+ private:
+  static constexpr size_t max_kept = 32;
+  std::mutex m_mutex;
+  std::vector<std::unique_ptr<SymmetricFactor>> m_free;
 };
 
 }  // namespace pbve::mass_spring::detail

@@ -82,51 +82,78 @@ struct MassSpringSimulator::Impl {
     }
     return out;
   }
-  // Tangent of the surface positions along a tangent dxn of the node positions (3N), at xn.
-  Vertices surface_tangent(const VectorXd& xn, const VectorXd& dxn) const {
-    const Vertices dn = sheet_nodes(dxn);
-    if (!sheet) return dn;
+  // With a sheet: d surface positions / d node positions at xn, 3V by 3N (row 3 v + d, column
+  // 3 node + d).
+  using SurfaceJacobian = Eigen::SparseMatrix<double, Eigen::RowMajor>;
+  SurfaceJacobian surface_jacobian(const VectorXd& xn) const {
     const Vertices nodes = sheet_nodes(xn);
-    Vertices out(num_vertices(), 3);
+    // Row by row (rows in order, columns ascending within a row), straight into compressed
+    // storage sized by a first pass: 3 entries per row of a node's vertex, 3 per involved node
+    // in a row of an attached one.
     std::vector<int> involved;
     Eigen::Matrix<double, 3, Eigen::Dynamic> jac;
-    for (int v = 0; v < num_vertices(); ++v) {
+    const int nv = num_vertices();
+    Eigen::Index nnz = 0;
+    for (int v = 0; v < nv; ++v) {
       const int node = sheet->vertex_node[static_cast<size_t>(v)];
       if (node >= 0) {
-        out.row(v) = dn.row(node);
+        nnz += 3;
+        continue;
+      }
+      attached_position_support(*sheet, sheet->attachment[static_cast<size_t>(v)], involved);
+      nnz += 9 * static_cast<Eigen::Index>(involved.size());
+    }
+    SurfaceJacobian out(3 * nv, 3 * N());
+    out.resizeNonZeros(nnz);
+    int* outer = out.outerIndexPtr();
+    int* inner = out.innerIndexPtr();
+    double* value = out.valuePtr();
+    int k = 0;
+    outer[0] = 0;
+    for (int v = 0; v < nv; ++v) {
+      const int node = sheet->vertex_node[static_cast<size_t>(v)];
+      if (node >= 0) {
+        for (int d = 0; d < 3; ++d) {
+          inner[k] = 3 * node + d;
+          value[k++] = 1.0;
+          outer[3 * v + d + 1] = k;
+        }
         continue;
       }
       attached_position_jacobian(*sheet, sheet->attachment[static_cast<size_t>(v)], nodes, involved,
                                  jac);
-      Vector3d t = Vector3d::Zero();
-      for (size_t i = 0; i < involved.size(); ++i)
-        t += jac.middleCols<3>(3 * static_cast<Eigen::Index>(i)) * dn.row(involved[i]).transpose();
-      out.row(v) = t.transpose();
+      for (int d = 0; d < 3; ++d) {
+        for (size_t i = 0; i < involved.size(); ++i)
+          for (int c = 0; c < 3; ++c) {
+            inner[k] = 3 * involved[i] + c;
+            value[k++] = jac(d, 3 * static_cast<Eigen::Index>(i) + c);
+          }
+        outer[3 * v + d + 1] = k;
+      }
     }
     return out;
   }
+  // Tangent of the surface positions along a tangent dxn of the node positions (3N), at xn
+  // (with a sheet, `jacobian` is surface_jacobian(xn) when given).
+  Vertices surface_tangent(const VectorXd& xn, const VectorXd& dxn,
+                           const SurfaceJacobian* jacobian = nullptr) const {
+    if (!sheet) return sheet_nodes(dxn);
+    const VectorXd t = jacobian ? VectorXd(*jacobian * dxn) : VectorXd(surface_jacobian(xn) * dxn);
+    return Eigen::Map<const Vertices>(t.data(), num_vertices(), 3);
+  }
   // The transpose: a cotangent d (#V by 3) of the surface positions as a 3N node cotangent.
-  VectorXd surface_cotangent(const VectorXd& xn, const Vertices& d) const {
+  VectorXd surface_cotangent(const VectorXd& xn, const Vertices& d,
+                             const SurfaceJacobian* jacobian = nullptr) const {
     VectorXd out = VectorXd::Zero(3 * N());
     if (!sheet) {
       for (int i = 0; i < model->num_surface; ++i) out.segment<3>(3 * i) = d.row(i).transpose();
       return out;
     }
-    const Vertices nodes = sheet_nodes(xn);
-    std::vector<int> involved;
-    Eigen::Matrix<double, 3, Eigen::Dynamic> jac;
-    for (int v = 0; v < num_vertices(); ++v) {
-      const int node = sheet->vertex_node[static_cast<size_t>(v)];
-      if (node >= 0) {
-        out.segment<3>(3 * node) += d.row(v).transpose();
-        continue;
-      }
-      attached_position_jacobian(*sheet, sheet->attachment[static_cast<size_t>(v)], nodes, involved,
-                                 jac);
-      for (size_t i = 0; i < involved.size(); ++i)
-        out.segment<3>(3 * involved[i]) +=
-            jac.middleCols<3>(3 * static_cast<Eigen::Index>(i)).transpose() * d.row(v).transpose();
-    }
+    const Eigen::Map<const VectorXd> flat(d.data(), d.size());
+    if (jacobian)
+      out.noalias() = jacobian->transpose() * flat;
+    else
+      out.noalias() = surface_jacobian(xn).transpose() * flat;
     return out;
   }
   // Per-node rows (#surface nodes) spread to the surface vertices (zero on attached ones).
@@ -149,6 +176,9 @@ struct MassSpringSimulator::Impl {
   struct Solver {
     detail::SparseCholesky chol;
     bool valid = false;  // holds the factorization of the matrix `key` describes
+    // `base` only: the step's first (exact) Newton matrix was not positive definite, so this
+    // is the factorization of the projected one that replaced it.
+    bool projected = false;
     VectorXd key;
     Solver() = default;
     Solver(const Solver& other) : chol(other.chol) {}
@@ -172,6 +202,7 @@ struct MassSpringSimulator::Impl {
   static constexpr int refactor_iterations = 6;
   static constexpr int max_reuse_iterations = 25;
   int last_reuse_iterations = 0;
+  int solves_in_call = 0;         // linear_solve() calls since begin_call()
   std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
   // Adjoint solves of indefinite exact Hessians: LL^T, else LDL^T, else LU (a copy starts
   // empty).
@@ -201,6 +232,7 @@ struct MassSpringSimulator::Impl {
     }
     active = base.valid ? &base : nullptr;
     last_reuse_iterations = 0;
+    solves_in_call = 0;
   }
 
   // Trajectory of the last step (for step_vjp).
@@ -477,8 +509,14 @@ struct MassSpringSimulator::Impl {
   // same CG as a reused one (converging at once), so a result does not depend on whether
   // `base` was kept from an earlier call: replays and clones match bit for bit. Iterative
   // mode: block-Jacobi CG. Returns false if J could not be factorized or CG failed.
+  //
+  // `exact`: J holds the exact Hessian, which may be indefinite. A step's first solve factorizes
+  // it into `base` when `base` is not kept; if that fails, `base` then holds the projected matrix
+  // (`projected`), and a call reusing that `base` fails its first exact solve the same way
+  // without factorizing, so that it takes the same path.
   template <class Stop>
-  bool linear_solve(const VectorXd& b, VectorXd& xout, Stop stop) {
+  bool linear_solve(const VectorXd& b, VectorXd& xout, Stop stop, bool exact = false) {
+    const bool first = solves_in_call++ == 0;
     if (!use_direct()) {
       build_preconditioner();
       return pcg(
@@ -493,9 +531,13 @@ struct MassSpringSimulator::Impl {
       last_reuse_iterations = stats.cg_iterations - before;
       return ok;
     };
+    const bool first_base = first && !in_adjoint;
+    if (first_base && exact && active == &base && base.projected) return false;
     if (active && last_reuse_iterations <= refactor_iterations && cg()) return true;
     Solver& slot = base.valid || in_adjoint ? work : base;
-    if (!factorize(slot)) {
+    const bool ok = factorize(slot);
+    if (first_base && &slot == &base) base.projected = !ok && exact;
+    if (!ok) {
       if (active == &slot) active = nullptr;
       return false;
     }
@@ -554,25 +596,35 @@ struct MassSpringSimulator::Impl {
     if (m.free_nodes.empty()) return 0;
     const double tol = P().newton_tolerance * m.char_length;
     VectorXd r, dy_free, trial;
+    bool exact = true;
     for (int it = 1; it <= P().newton_iterations; ++it) {
       residual(y, xn, vn, lag, h, r);
       const VectorXd rf = gather_free(r);
-      assemble(y, lag, h, false);
       // Inexact Newton: solve to 1e-4 of the current residual (1e-3 with block Jacobi), but at
       // least to a tenth of the Newton tolerance (mass-scaled, i.e. in metres).
       const double forcing = use_direct() ? 1e-4 : 1e-3;
       const double target = std::max(forcing * mass_scaled_inf(rf), 0.1 * tol);
-      if (!linear_solve(rf, dy_free,
-                        [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; }) &&
-          use_direct())
-        return -it;
+      auto stop = [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; };
+      // The exact Hessian while conjugate gradients find it positive definite (quadratic
+      // convergence; the solution is then a descent direction), else, for the rest of the
+      // substep, the one with compressed springs' negative transverse stiffness dropped
+      // (positive semi-definite springs: always a descent direction, linear convergence).
+      bool solved = false;
+      if (exact) {
+        assemble(y, lag, h, true);
+        solved = linear_solve(rf, dy_free, stop, true);
+        exact = solved;
+      }
+      if (!solved) {
+        assemble(y, lag, h, false);
+        if (!linear_solve(rf, dy_free, stop) && use_direct()) return -it;
+      }
       dy_free = -dy_free;
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
       if (!std::isfinite(step_inf)) return -it;
       double t = 1.0;
       if (step_inf > 1e-3 * m.char_length) {
-        // Backtracking (Armijo) on the incremental potential; the projected Hessian makes
-        // dy a descent direction.
+        // Backtracking (Armijo) on the incremental potential (dy is a descent direction).
         const double e0 = potential(y, xn, vn, lag, h);
         const double slope = rf.dot(dy_free);
         for (int ls = 0; ls < 12; ++ls) {
@@ -884,6 +936,7 @@ struct MassSpringSimulator::Impl {
 class MassSpringSimulator::Impl::Linear final : public StepLinearization {
  public:
   Linear(const Impl& sim, const StepInput& in) : m_sim(sim), m_in(in) {
+    if (m_sim.sheet) m_surface = m_sim.surface_jacobian(m_sim.tape.xs.back());
     const Model& m = *m_sim.model;
     const int S = m_sim.P().substeps;
     m_h = in.dt / S;
@@ -894,11 +947,17 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
       m_sim.make_lag(m_sim.tape.xs[k], m_sim.tape.vs[k], in.control, m_lag[k]);
       if (m.free_nodes.empty()) continue;
       m_sim.assemble(m_sim.tape.xs[k + 1], m_lag[k], m_h, true);
-      m_factor[k] = std::make_unique<detail::SymmetricFactor>(m_sim.analysis());
+      m_factor[k] = m.factor_pool->take(m_sim.analysis());
       if (!m_factor[k]->factorize(m_sim.J))
         throw std::runtime_error("mass_spring: singular system in linearize_step");
     }
   }
+
+  ~Linear() override {
+    for (auto& f : m_factor) m_sim.model->factor_pool->give(std::move(f));
+  }
+  Linear(const Linear&) = delete;
+  Linear& operator=(const Linear&) = delete;
 
   VectorXd jvp(const VectorXd& d_state_before, const VectorXd& d_control) override {
     const Model& m = *m_sim.model;
@@ -942,7 +1001,8 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
   Vertices position_tangent(const VectorXd& d_state_after) const override {
     check_size(d_state_after, 6 * m_sim.N(), "d_state_after");
     if (d_state_after.size() == 0) return Vertices::Zero(m_sim.num_vertices(), 3);
-    return m_sim.surface_tangent(m_sim.tape.xs.back(), d_state_after.head(3 * m_sim.N()));
+    return m_sim.surface_tangent(m_sim.tape.xs.back(), d_state_after.head(3 * m_sim.N()),
+                                 m_surface_ptr());
   }
 
   VectorXd position_cotangent(const Vertices& d_positions_after) const override {
@@ -951,7 +1011,8 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
                                   std::to_string(m_sim.num_vertices()) + " rows, got " +
                                   std::to_string(d_positions_after.rows()));
     VectorXd out = VectorXd::Zero(6 * m_sim.N());
-    out.head(3 * m_sim.N()) = m_sim.surface_cotangent(m_sim.tape.xs.back(), d_positions_after);
+    out.head(3 * m_sim.N()) =
+        m_sim.surface_cotangent(m_sim.tape.xs.back(), d_positions_after, m_surface_ptr());
     return out;
   }
 
@@ -1002,8 +1063,11 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
                                   std::to_string(expected) + " or 0");
   }
 
+  const SurfaceJacobian* m_surface_ptr() const { return m_sim.sheet ? &m_surface : nullptr; }
+
   Impl m_sim;  // a copy holding the recorded trajectory (and scratch for assembly)
   StepInput m_in;
+  SurfaceJacobian m_surface;  // with a sheet: surface_jacobian() at the step's end
   double m_h = 0.0;
   std::vector<Lag> m_lag;                                          // per substep
   std::vector<std::unique_ptr<detail::SymmetricFactor>> m_factor;  // per substep, exact J_ff

@@ -11,6 +11,7 @@
 #include <Eigen/SparseCore>
 
 #include "cholesky.hpp"
+#include "factor.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/core/thin_sheet.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
@@ -46,6 +47,8 @@ struct Model {
   // Symbolic analysis of `pattern` for the sparse Cholesky factorizations, made on first use
   // and shared by every clone.
   std::shared_ptr<SharedCholeskyAnalysis> cholesky = std::make_shared<SharedCholeskyAnalysis>();
+  // Factorizations of that pattern for reuse (step linearizations), shared by every clone.
+  std::shared_ptr<FactorPool> factor_pool = std::make_shared<FactorPool>();
 };
 
 /// The sheet of a thin closed cloth (Params::single_sheet), or nothing when the surface does not

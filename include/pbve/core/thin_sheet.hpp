@@ -47,8 +47,13 @@ Vertices sheet_normals(const ThinSheet& sheet, const Vertices& nodes);
 Eigen::Vector3d attached_position(const ThinSheet& sheet, const SheetAttachment& a,
                                   const Vertices& nodes, const Vertices& normals);
 
-/// attached_position() and its Jacobian with respect to the sheet nodes it depends on (those
-/// of the triangles around its triangle's nodes): `involved` receives their indices (sorted),
+/// The sheet nodes attached_position() of `a` depends on, sorted (into `involved`): those of
+/// the triangles around its triangle's nodes.
+void attached_position_support(const ThinSheet& sheet, const SheetAttachment& a,
+                               std::vector<int>& involved);
+
+/// attached_position() and its Jacobian with respect to the sheet nodes it depends on
+/// (attached_position_support()): `involved` receives their indices (sorted),
 /// `jacobian` the 3 x (3 * involved.size()) matrix d position / d node positions (node-major,
 /// x y z per node).
 Eigen::Vector3d attached_position_jacobian(const ThinSheet& sheet, const SheetAttachment& a,

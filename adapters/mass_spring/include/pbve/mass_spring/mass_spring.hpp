@@ -8,7 +8,9 @@
 /// with lumped masses M and Rayleigh damping \f$ C = \alpha M + \beta K \f$. Each substep of
 /// length h solves the backward Euler equations
 /// \f[ M(v' - v) = h\,(f_{int}(x') + f_c(x') - C(x) v' + m g + u),\quad x' = x + h v' \f]
-/// for x' with Newton's method (line search, tolerance Params::newton_tolerance), where
+/// for x' with Newton's method (line search, tolerance Params::newton_tolerance; the exact
+/// Hessian while it is positive definite, else, for the rest of the substep, the Hessian with
+/// the negative stiffness of compressed springs across their axis dropped), where
 /// K(x) in the damping term is the axial spring stiffness \f$\sum_s k_s u_s u_s^T\f$ (the exact
 /// stiffness at rest, always positive semi-definite) evaluated at the start of the substep;
 /// its position derivative is part of the adjoint, so step_vjp() is exact.
