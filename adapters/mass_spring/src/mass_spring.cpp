@@ -562,20 +562,40 @@ struct MassSpringSimulator::Impl {
   }
 
   // out = J_full(y) * lam on all nodes, with the exact Hessian (lam: 3N).
-  void apply_exact(const VectorXd& y, const Lag& lag, double h, const VectorXd& lam,
-                   VectorXd& out) const {
+  // The blocks of the exact Jacobian (all nodes, anchored ones included) at y: one per node and
+  // one per spring.
+  struct ExactBlocks {
+    std::vector<Matrix3d> node, spring;
+  };
+  void exact_blocks(const VectorXd& y, const Lag& lag, double h, ExactBlocks& out) const {
+    const Model& m = *model;
+    out.node.resize(static_cast<size_t>(N()));
+    for (int i = 0; i < N(); ++i) out.node[static_cast<size_t>(i)] = node_block(i, y, lag, h);
+    out.spring.resize(m.springs.size());
+    for (size_t s = 0; s < m.springs.size(); ++s) {
+      const Spring& sp = m.springs[s];
+      out.spring[s] = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a), lag.dir[s],
+                                   h, P().damping_beta, true);
+    }
+  }
+  // out = J lam with the blocks of exact_blocks().
+  void apply_blocks(const ExactBlocks& b, const VectorXd& lam, VectorXd& out) const {
     const Model& m = *model;
     out.resize(3 * N());
     for (int i = 0; i < N(); ++i)
-      out.segment<3>(3 * i) = node_block(i, y, lag, h) * lam.segment<3>(3 * i);
+      out.segment<3>(3 * i) = b.node[static_cast<size_t>(i)] * lam.segment<3>(3 * i);
     for (size_t s = 0; s < m.springs.size(); ++s) {
       const Spring& sp = m.springs[s];
-      const Matrix3d B = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
-                                      lag.dir[s], h, P().damping_beta, true);
-      const Vector3d q = B * (lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a));
+      const Vector3d q = b.spring[s] * (lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a));
       out.segment<3>(3 * sp.b) += q;
       out.segment<3>(3 * sp.a) -= q;
     }
+  }
+  void apply_exact(const VectorXd& y, const Lag& lag, double h, const VectorXd& lam,
+                   VectorXd& out) const {
+    ExactBlocks b;
+    exact_blocks(y, lag, h, b);
+    apply_blocks(b, lam, out);
   }
 
   VectorXd gather_free(const VectorXd& full) const {
@@ -941,10 +961,12 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
     const int S = m_sim.P().substeps;
     m_h = in.dt / S;
     m_lag.resize(static_cast<size_t>(S));
+    m_blocks.resize(static_cast<size_t>(S));
     m_factor.resize(static_cast<size_t>(S));
     for (int s = 0; s < S; ++s) {
       const auto k = static_cast<size_t>(s);
       m_sim.make_lag(m_sim.tape.xs[k], m_sim.tape.vs[k], in.control, m_lag[k]);
+      m_sim.exact_blocks(m_sim.tape.xs[k + 1], m_lag[k], m_h, m_blocks[k]);
       if (m.free_nodes.empty()) continue;
       m_sim.assemble(m_sim.tape.xs[k + 1], m_lag[k], m_h, true);
       m_factor[k] = m.factor_pool->take(m_sim.analysis());
@@ -982,7 +1004,7 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
       for (size_t a = 0; a < m.anchors.size(); ++a)
         dy.segment<3>(3 * m.anchors[a]) = w_a0 * da0.segment<3>(3 * static_cast<Eigen::Index>(a));
       if (!m.anchors.empty()) {
-        m_sim.apply_exact(y, m_lag[k], m_h, dy, Jd);
+        m_sim.apply_blocks(m_blocks[k], dy, Jd);
         dr += Jd;
       }
       if (m_factor[k]) {
@@ -1034,7 +1056,7 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
         for (size_t f = 0; f < m.free_nodes.size(); ++f)
           lam.segment<3>(3 * m.free_nodes[f]) = lf.segment<3>(3 * static_cast<Eigen::Index>(f));
       }
-      m_sim.apply_exact(y, m_lag[k], m_h, lam, Jlam);
+      m_sim.apply_blocks(m_blocks[k], lam, Jlam);
       m_sim.substep_transpose(m_sim.tape.xs[k], m_sim.tape.vs[k], y, m_lag[k], m_h,
                               anchor_weight(s), G, gv, lam, Jlam, gx_new, gv_new, ga0, gu);
       gx.swap(gx_new);
@@ -1069,7 +1091,8 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
   StepInput m_in;
   SurfaceJacobian m_surface;  // with a sheet: surface_jacobian() at the step's end
   double m_h = 0.0;
-  std::vector<Lag> m_lag;                                          // per substep
+  std::vector<Lag> m_lag;             // per substep
+  std::vector<ExactBlocks> m_blocks;  // per substep, the exact Jacobian at its end
   std::vector<std::unique_ptr<detail::SymmetricFactor>> m_factor;  // per substep, exact J_ff
 };
 
