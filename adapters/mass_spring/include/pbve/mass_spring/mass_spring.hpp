@@ -128,9 +128,10 @@ struct Params {
   /// Linear solver choice.
   LinearSolver linear_solver = LinearSolver::automatic;
   /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node).
-  /// Measured crossover (docs/benchmarks.md): direct is faster for a 484-vertex cloth, block
-  /// Jacobi for 1k vertices and more.
-  int direct_solver_max_dofs = 2000;
+  /// Measured (docs/benchmarks.md, mass_spring): with Newton on the exact Hessian the direct
+  /// solver is as fast as block-Jacobi CG or faster at every cloth size up to 16k vertices
+  /// (about 49k unknowns), and 4x faster on example 1's board at 3k vertices.
+  int direct_solver_max_dofs = 60000;
   /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0):
   /// there block-Jacobi CG needs thousands of iterations per solve, and factorizing is 5-7x
   /// faster at 838 and 3 022 vertices (example 1's board; docs/benchmarks.md).
