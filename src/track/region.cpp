@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <stdexcept>
+#include <string>
 #include <utility>
 
 namespace pbve::track_detail {
@@ -151,6 +153,13 @@ inline cv::Vec3b pixel_at(const cv::Mat& bgr, const Vector2d& p) {
 LineEstimate estimate_line(const cv::Mat& bgr, const ColourModel& model, const ContourPoint& c,
                            const LineOptions& o) {
   LineEstimate out;
+  // The work arrays below are sized for lines of at most kMaxOffsets offsets either way and
+  // kMaxSegments segments either way (the tracker uses 5 and 10).
+  constexpr int kMaxOffsets = 31, kMaxSegments = 32;
+  if (o.range < 0 || o.context < 0 || o.range > kMaxOffsets || o.range + o.context > kMaxSegments)
+    throw std::invalid_argument("estimate_line: range " + std::to_string(o.range) +
+                                " and context " + std::to_string(o.context) +
+                                " outside 0 <= range <= 31, range + context <= 32");
   const int k = std::max(1, o.scale);
   const int segments = o.range + o.context;  // either way
   const int from = -segments * k, to = segments * k;
