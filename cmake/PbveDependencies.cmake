@@ -9,18 +9,9 @@ find_package(PkgConfig REQUIRED)
 pkg_check_modules(IPOPT REQUIRED IMPORTED_TARGET ipopt)
 find_package(yaml-cpp REQUIRED)
 # Sparse Cholesky factorization for mass_spring's direct solver: CHOLMOD (libsuitesparse-dev),
-# running on the system BLAS/LAPACK (libopenblas-dev for speed). SuiteSparse 7 ships a CMake
-# package (target SuiteSparse::CHOLMOD); Debian 12's SuiteSparse 5 does not, so the target is
-# made from the header and library found.
-find_package(CHOLMOD CONFIG QUIET)
-if(NOT TARGET SuiteSparse::CHOLMOD)
-  find_path(CHOLMOD_INCLUDE_DIR cholmod.h PATH_SUFFIXES suitesparse REQUIRED)
-  find_library(CHOLMOD_LIBRARY cholmod REQUIRED)
-  add_library(SuiteSparse::CHOLMOD UNKNOWN IMPORTED)
-  set_target_properties(SuiteSparse::CHOLMOD PROPERTIES
-    IMPORTED_LOCATION "${CHOLMOD_LIBRARY}"
-    INTERFACE_INCLUDE_DIRECTORIES "${CHOLMOD_INCLUDE_DIR}")
-endif()
+# running on the system BLAS/LAPACK (libopenblas-dev for speed). PbveCholmod.cmake is also
+# installed with the package configuration, which needs it for a static pbve.
+include(${CMAKE_CURRENT_LIST_DIR}/PbveCholmod.cmake)
 # Report files (JSON): nlohmann-json3-dev, header-only.
 find_package(nlohmann_json 3 REQUIRED)
 if(PBVE_WITH_BULLET)

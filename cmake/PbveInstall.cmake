@@ -19,4 +19,5 @@ configure_package_config_file(${PROJECT_SOURCE_DIR}/cmake/pbveConfig.cmake.in
 write_basic_package_version_file(${PROJECT_BINARY_DIR}/pbveConfigVersion.cmake
   VERSION ${PROJECT_VERSION} COMPATIBILITY SameMinorVersion)
 install(FILES ${PROJECT_BINARY_DIR}/pbveConfig.cmake ${PROJECT_BINARY_DIR}/pbveConfigVersion.cmake
+              ${PROJECT_SOURCE_DIR}/cmake/PbveCholmod.cmake
         DESTINATION ${CMAKE_INSTALL_LIBDIR}/cmake/pbve)
