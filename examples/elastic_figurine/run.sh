@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Example 2 — elastic figurine (the paper's puppetry effect): a character-like figurine held at
-# its feet is moved sideways and stopped; edited into a soft elastic body anchored at its feet,
-# it keeps moving where it is soft after the hand stops. Without and with control, then plotted.
+# its feet is pushed towards the camera and stopped, three times; edited into an elastic body
+# with a jelly belly (a soft region of its lattice) anchored at its feet, it nods over the belly
+# at every stop, showing the top of its head that the footage never shows, and swings back.
+# Without and with control, then plotted.
 # Usage: examples/elastic_figurine/run.sh [OUT_DIR]   (after building the release preset)
 set -euo pipefail
 source "$(dirname "$0")/../common.sh"
-run_example "${1:-$root/out/elastic_figurine}" --shape figurine --motion stop --frames 90
+run_example "${1:-$root/out/elastic_figurine}" --shape figurine --motion push --frames 90

@@ -43,7 +43,7 @@ int run_synth(const std::vector<std::string>& argv) {
         "\n"
         "options:\n"
         "  --shape S        board (default) | figurine | ball | statue (fractured, needs Bullet)\n"
-        "  --motion M       swing (default) | wave | stop | bounce | orbit | still\n"
+        "  --motion M       swing (default) | wave | stop | push | bounce | orbit | still\n"
         "  --engine E       mass_spring | bullet (default: mass_spring, bullet for the statue)\n"
         "  --amplitude DEG  peak turn of swing (default 80) or stop (default 20)\n"
         "  --frequency HZ   turns per second of swing (default 0.9)\n"

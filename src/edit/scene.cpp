@@ -325,6 +325,36 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       } else if (k == "planes") {
         if (!v.IsSequence()) r.fail(v, key, "expected a list of planes");
         for (const auto& p : v) s.simulation.planes.push_back(r.plane(p, key));
+      } else if (k == "regions") {
+        if (!v.IsSequence()) r.fail(v, key, "expected a list of regions");
+        for (const auto& e : v) {
+          if (!e.IsMap())
+            r.fail(e, key, "expected {box: {min: [x,y,z], max: [x,y,z]}, PARAMETER: VALUE}");
+          SceneRegion region;
+          region.line = e.Mark().line + 1;
+          require(r, e, "box", key);
+          for (const auto& rkv : e) {
+            const std::string rk = rkv.first.as<std::string>();
+            if (rk == "box") {
+              const YAML::Node b = rkv.second;
+              r.check_map(b, key + ".box", {"min", "max"});
+              require(r, b, "min", key + ".box");
+              require(r, b, "max", key + ".box");
+              region.box_min = r.vec3(b["min"], key + ".box.min");
+              region.box_max = r.vec3(b["max"], key + ".box.max");
+              if ((region.box_min.array() > region.box_max.array()).any())
+                r.fail(b, key + ".box", "min must not exceed max in any coordinate");
+            } else if (rkv.second.IsScalar()) {
+              region.parameters[rk] = {r.number(rkv.second, key + "." + rk),
+                                       rkv.second.Mark().line + 1};
+            } else {
+              r.fail(rkv.second, key + "." + rk, "expected a number (a material parameter)");
+            }
+          }
+          if (region.parameters.empty())
+            r.fail(e, key, "a region needs a material parameter besides its box");
+          s.simulation.regions.push_back(std::move(region));
+        }
       } else if (k == "substeps") {
         s.simulation.substeps = r.integer(v, key);
         if (s.simulation.substeps < 1 || s.simulation.substeps > 10000)
@@ -509,6 +539,20 @@ std::string scene_to_yaml(const Scene& s) {
     e << YAML::EndSeq;
   }
   e << YAML::Key << "substeps" << YAML::Value << s.simulation.substeps;
+  if (!s.simulation.regions.empty()) {
+    e << YAML::Key << "regions" << YAML::Value << YAML::BeginSeq;
+    for (const SceneRegion& g : s.simulation.regions) {
+      e << YAML::BeginMap << YAML::Key << "box" << YAML::Value << YAML::BeginMap << YAML::Key
+        << "min" << YAML::Value;
+      vec(g.box_min);
+      e << YAML::Key << "max" << YAML::Value;
+      vec(g.box_max);
+      e << YAML::EndMap;
+      for (const auto& [k, v] : g.parameters) e << YAML::Key << k << YAML::Value << v.first;
+      e << YAML::EndMap;
+    }
+    e << YAML::EndSeq;
+  }
   for (const auto& [k, v] : s.simulation.parameters) e << YAML::Key << k << YAML::Value << v.first;
   e << YAML::EndMap;
   const SceneControl& c = s.control;

@@ -140,6 +140,28 @@ TEST(BulletSynth, EngineOptionWritesTheScene) {
   EXPECT_NE(r.output.find("unknown engine"), std::string::npos) << r.output;
 }
 
+// The elastic figurine through Bullet (`pbve synth --shape figurine --engine bullet`): the
+// scene is Bullet's elastic preset (no mass_spring regions) and the pushed figurine is
+// simulated through the first stop (frame 18) without diverging.
+TEST(BulletSynth, ElasticFigurineRuns) {
+  if (!fs::exists(pbve_binary()))
+    GTEST_SKIP() << pbve_binary() << " was not built (PBVE_BUILD_EXAMPLES=OFF)";
+  pbve::test::TempDir dir;
+  const CmdResult s = pbve_cmd(
+      "synth --shape figurine --motion push --engine bullet --frames 24 --size 160x120 "
+      "--supersample 1 " +
+      dir.path().string());
+  ASSERT_EQ(s.status, 0) << s.output;
+  const std::string text = pbve::test::read_text(dir / "scene.yaml");
+  EXPECT_EQ(text.find("regions"), std::string::npos) << text;
+  const CmdResult r = pbve_cmd("edit " + (dir / "scene.yaml").string() + " --no-control --quiet");
+  ASSERT_EQ(r.status, 0) << r.output;
+  const pbve::Report rep = pbve::read_report(dir / "report.json");
+  ASSERT_EQ(rep.frames.size(), 24u);
+  EXPECT_TRUE(rep.complete);
+  for (const auto& f : rep.frames) EXPECT_EQ(f.substep_factor, 1) << "frame " << f.index;
+}
+
 // Example 1 through Bullet, small: `pbve synth --engine bullet` writes the Bullet board scene
 // (the board's faces as one sheet, 10 substeps of 10 solver passes, central differences over 16
 // clusters); the test coarsens the board to 10 cm edges (130 vertices), renders 320 x 240 and

@@ -166,6 +166,20 @@ TEST_F(BadInput, MistypedMaterialParameterSuggestsTheNearest) {
                {location("densty:") + "key 'simulation.densty'", "did you mean 'density'?"});
 }
 
+TEST_F(BadInput, RegionParameterTheEngineLacksNamesTheKey) {
+  replace(scene, "  substeps: 3",
+          "  substeps: 3\n  regions: [{box: {min: [0, 0, 0], max: [1, 1, 1]}, densty: 30}]");
+  expect_error(edit(), {location("regions:") + "key 'simulation.regions.densty'",
+                        "a region sets volume_stiffness"});
+}
+
+TEST_F(BadInput, RegionsOfACloth) {
+  replace(
+      scene, "  substeps: 3",
+      "  substeps: 3\n  regions: [{box: {min: [0, 0, 0], max: [1, 1, 1]}, volume_stiffness: 30}]");
+  expect_error(edit(), {"regions applies to solids (elastic, stiff), not to cloth"});
+}
+
 TEST_F(BadInput, WrongTypeNamesTheKey) {
   replace(scene, "substeps: 3", "substeps: many");
   expect_error(edit(), {location("substeps:") + "key 'simulation.substeps'",

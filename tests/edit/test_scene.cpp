@@ -155,6 +155,61 @@ TEST(Scene, ControlClusters) {
   EXPECT_NE(e.find("negative"), std::string::npos) << e;
 }
 
+// kFull with `regions` (one entry per line) in place of its `substeps: 12` line (line 15).
+std::string with_regions(const std::string& entries) {
+  std::string text = kFull;
+  const std::string line = "  substeps: 12\n";
+  text.replace(text.find(line), line.size(), line + "  regions:\n" + entries);
+  return text;
+}
+
+TEST(Scene, SimulationRegions) {
+  const pbve::Scene s = parse_scene(
+      with_regions("    - {box: {min: [-1, -0.2, -1], max: [1, -0.05, 1]}, volume_stiffness: 3e4}\n"
+                   "    - box: {min: [0, 0, 0], max: [0, 0, 0]}\n"
+                   "      volume_stiffness: 5\n"),
+      "/scenes/s.yaml");
+  ASSERT_EQ(s.simulation.regions.size(), 2u);
+  const pbve::SceneRegion& a = s.simulation.regions[0];
+  EXPECT_DOUBLE_EQ(a.box_min.y(), -0.2);
+  EXPECT_DOUBLE_EQ(a.box_max.y(), -0.05);
+  ASSERT_EQ(a.parameters.count("volume_stiffness"), 1u);
+  EXPECT_DOUBLE_EQ(a.parameters.at("volume_stiffness").first, 3e4);
+  EXPECT_EQ(a.line, 17);
+  EXPECT_EQ(s.simulation.regions[1].parameters.at("volume_stiffness").second, 19);
+  const pbve::Scene b = parse_scene(pbve::scene_to_yaml(s), "/elsewhere/s.yaml");
+  ASSERT_EQ(b.simulation.regions.size(), 2u);
+  EXPECT_EQ(b.simulation.regions[0].box_min, a.box_min);
+  EXPECT_EQ(b.simulation.regions[0].box_max, a.box_max);
+  EXPECT_EQ(b.simulation.regions[1].parameters.at("volume_stiffness").first, 5);
+}
+
+TEST(SceneErrors, BadRegionsNameKeyAndLine) {
+  auto expect = [](const std::string& entries, const std::string& line, const std::string& key,
+                   const std::string& what) {
+    const std::string e = error_of(with_regions(entries));
+    EXPECT_NE(e.find(line), std::string::npos) << e;
+    EXPECT_NE(e.find(key), std::string::npos) << e;
+    EXPECT_NE(e.find(what), std::string::npos) << e;
+  };
+  expect("    - {volume_stiffness: 3e4}\n", ":17:", "simulation.regions.box", "missing");
+  expect("    - {box: {min: [0, 1, 0], max: [1, 0, 1]}, volume_stiffness: 3e4}\n",
+         ":17:", "simulation.regions.box", "min must not exceed max");
+  expect("    - {box: {min: [0, 0, 0], max: [1, 1, 1]}}\n", ":17:", "simulation.regions",
+         "needs a material parameter");
+  expect("    - {box: {min: [0, 0, 0], mx: [1, 1, 1]}, volume_stiffness: 1}\n",
+         ":17:", "simulation.regions.box.mx", "did you mean 'max'");
+  expect("    - {box: {min: [0, 0, 0], max: [1, 1, 1]}, volume_stiffness: soft}\n",
+         ":17:", "simulation.regions.volume_stiffness", "'soft'");
+  const std::string e = error_of(
+      "input:   {video: clip.mp4}\n"
+      "camera:  {fx: 600, fy: 610, cx: 320, cy: 240}\n"
+      "object: {mesh: m.obj, poses: p.txt}\n"
+      "simulation: {regions: 3}\noutput: {video: o.mp4}\n");
+  EXPECT_NE(e.find(":4:"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected a list of regions"), std::string::npos) << e;
+}
+
 TEST(SceneErrors, MissingRequiredKey) {
   const std::string e = error_of(
       "input: {video: a.mp4}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\nobject: {mesh: m.obj}\n"

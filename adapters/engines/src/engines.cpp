@@ -100,6 +100,19 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
       int_field = &p.single_sheet;
     store_parameter(r, "mass_spring", key, line, value, field, int_field);
   }
+  for (const SceneRegion& g : s.regions) {
+    ms::StiffnessRegion region;
+    region.min = g.box_min;
+    region.max = g.box_max;
+    for (const auto& [key, value_line] : g.parameters) {
+      if (key != "volume_stiffness")
+        fail_key(r, "regions." + key, value_line.second,
+                 "unknown region parameter for engine mass_spring (a region sets "
+                 "volume_stiffness)");
+      region.volume_stiffness = value_line.first;
+    }
+    p.regions.push_back(region);
+  }
   try {
     p.validate();
     return std::make_unique<ms::MassSpringSimulator>(r.mesh, r.rest_positions, r.anchors, p);
@@ -173,6 +186,9 @@ std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
       int_field = &p.single_sheet;
     store_parameter(r, "bullet", key, line, value, field, int_field);
   }
+  if (!s.regions.empty())
+    fail_key(r, "regions", s.regions.front().line,
+             "the bullet engine has one material per object; regions need engine mass_spring");
   try {
     p.validate();
     return std::make_unique<bt::BulletSimulator>(r.mesh, r.rest_positions, r.anchors, p);

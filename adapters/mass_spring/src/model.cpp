@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <numbers>
 #include <stdexcept>
 #include <string>
@@ -113,6 +114,44 @@ std::optional<ThinSheet> thin_sheet_of(const Mesh& mesh, const Vertices& positio
   if (!(reach > 0.0)) return std::nullopt;
   return make_thin_sheet(positions, t, reach);
 }
+
+namespace {
+
+/// The lattice stiffness at a rest-frame point: that of the last of params.regions containing
+/// it in mesh coordinates, else params.volume_stiffness. Mesh coordinates map to the rest
+/// positions by the best-fitting similarity transform (the editor poses the mesh rigidly).
+std::function<double(const Vector3d&)> region_stiffness(const Mesh& mesh, const Vertices& positions,
+                                                        const Params& params) {
+  const double E = params.volume_stiffness;
+  if (params.regions.empty()) return [E](const Vector3d&) { return E; };
+  Eigen::Matrix4d to_mesh = Eigen::Matrix4d::Identity();
+  if (mesh.num_vertices() != 0) {
+    const Eigen::Matrix3Xd src = mesh.vertices.transpose(), dst = positions.transpose();
+    const Eigen::Matrix4d fit = Eigen::umeyama(src, dst, true);
+    const Eigen::Matrix3Xd mapped =
+        (fit.topLeftCorner<3, 3>() * src).colwise() + fit.topRightCorner<3, 1>();
+    const double size = (dst.rowwise().maxCoeff() - dst.rowwise().minCoeff()).norm();
+    const double misfit = (mapped - dst).colwise().norm().maxCoeff();
+    if (!(misfit <= 1e-6 * size))
+      throw std::invalid_argument(
+          "mass_spring: parameter regions is given in mesh coordinates, but the rest positions "
+          "are not a rigid or similar copy of the mesh (misfit " +
+          std::to_string(misfit) + " m)");
+    to_mesh = fit.inverse();
+  }
+  const Eigen::Matrix3d R = to_mesh.topLeftCorner<3, 3>();
+  const Vector3d t = to_mesh.topRightCorner<3, 1>();
+  return [R, t, E, regions = params.regions](const Vector3d& p) {
+    const Vector3d q = R * p + t;
+    double k = E;
+    for (const StiffnessRegion& r : regions)
+      if ((q.array() >= r.min.array()).all() && (q.array() <= r.max.array()).all())
+        k = r.volume_stiffness;
+    return k;
+  };
+}
+
+}  // namespace
 
 Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> anchors,
                   const Params& params) {
@@ -233,7 +272,7 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
         lattice_id[static_cast<size_t>(id)] = static_cast<int>(lattice.size());
         lattice.push_back(cell_pos(id));
       }
-    const double E = params.volume_stiffness;
+    const auto stiffness_at = region_stiffness(mesh, positions, params);
     // Lattice springs: 3 axis, 6 face-diagonal and 4 body-diagonal neighbours per node (each
     // pair once), each standing for a quarter of a cell volume.
     const int offsets[13][3] = {{1, 0, 0},  {0, 1, 0},  {0, 0, 1},  {1, 1, 0},  {1, -1, 0},
@@ -250,6 +289,8 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
         if (b < 0) continue;
         const double l0 =
             s * std::sqrt(static_cast<double>(o[0] * o[0] + o[1] * o[1] + o[2] * o[2]));
+        const double E =
+            stiffness_at(0.5 * (lattice[static_cast<size_t>(a)] + lattice[static_cast<size_t>(b)]));
         add_spring(nv + a, nv + b, l0, E * 0.25 * s * s * s / (l0 * l0));
       }
     }
@@ -279,6 +320,7 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
         if (count == 0 && !near.empty()) count = 1;
         for (size_t q = 0; q < count; ++q) {
           const double l0 = near[q].first, le = std::max(l0, 0.5 * s);
+          const double E = stiffness_at(0.5 * (p + lattice[static_cast<size_t>(near[q].second)]));
           add_spring(v, nv + near[q].second, l0,
                      E * vertex_area[v] * s / static_cast<double>(count) / (le * le));
         }

@@ -79,6 +79,17 @@ void Params::validate() const {
   if (single_sheet != 0 && single_sheet != 1) bad("single_sheet", "0 or 1", single_sheet);
   if (material != Material::cloth) positive(volume_stiffness, "volume_stiffness");
   non_negative(lattice_spacing, "lattice_spacing");
+  if (!regions.empty() && material == Material::cloth)
+    throw std::invalid_argument(
+        "mass_spring: parameter regions applies to solids (elastic, stiff), not to cloth");
+  for (size_t i = 0; i < regions.size(); ++i) {
+    const StiffnessRegion& r = regions[i];
+    const std::string name = "regions[" + std::to_string(i) + "]";
+    if (!r.min.allFinite() || !r.max.allFinite() || (r.min.array() > r.max.array()).any())
+      throw std::invalid_argument("mass_spring: parameter " + name +
+                                  " needs finite corners with min <= max in every coordinate");
+    positive(r.volume_stiffness, (name + ".volume_stiffness").c_str());
+  }
   non_negative(damping_alpha, "damping_alpha");
   non_negative(damping_beta, "damping_beta");
   if (!gravity.allFinite())

@@ -65,6 +65,16 @@ struct ScenePlane {
   double friction = 0.5;
 };
 
+/// `simulation.regions:` entry — a box of the object (mesh coordinates) with its own material
+/// parameters, e.g. a soft belly: `{box: {min: [..], max: [..]}, volume_stiffness: 30000}`.
+struct SceneRegion {
+  Eigen::Vector3d box_min = Eigen::Vector3d::Zero();
+  Eigen::Vector3d box_max = Eigen::Vector3d::Zero();
+  /// Parameter name -> value and line, checked by the engine.
+  std::map<std::string, std::pair<double, int>> parameters;
+  int line = 0;  ///< line of the entry
+};
+
 /// `simulation:` — the new physics.
 struct SceneSimulation {
   std::string engine = "mass_spring";                     ///< mass_spring | bullet
@@ -73,6 +83,7 @@ struct SceneSimulation {
   std::optional<ScenePlane> ground;
   std::vector<ScenePlane> planes;  ///< extra collision planes
   int substeps = 10;
+  std::vector<SceneRegion> regions;  ///< parts with their own material parameters
   /// Any other numeric key: a material parameter override, checked by the engine
   /// (key -> value and the line it was given on, for messages).
   std::map<std::string, std::pair<double, int>> parameters;

@@ -47,7 +47,7 @@ cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
 /// What `pbve synth` makes.
 struct SynthOptions {
   std::string shape = "board";   ///< board | figurine | ball | statue (Bullet, fractured)
-  std::string motion = "swing";  ///< swing | wave | stop | bounce | orbit | still
+  std::string motion = "swing";  ///< swing | wave | stop | push | bounce | orbit | still
   /// Engine of the scene file: empty for the shape's own (mass_spring, the statue bullet), or
   /// mass_spring | bullet. With bullet, soft bodies get one control acceleration per cluster
   /// (control.clusters: 16: Bullet has no derivatives, so gradients are central differences),

@@ -60,6 +60,16 @@ struct Plane {
   double friction = 0.5;                               ///< Coulomb coefficient, >= 0
 };
 
+/// A box of a solid with its own lattice stiffness (a soft belly in a stiffer body, say).
+struct StiffnessRegion {
+  /// Corners of the box in mesh coordinates (the vertices of the mesh given to the
+  /// simulator; its rest positions when the mesh has none), min <= max in every coordinate.
+  Eigen::Vector3d min = Eigen::Vector3d::Zero();
+  Eigen::Vector3d max = Eigen::Vector3d::Zero();
+  /// Lattice stiffness inside the box, Pa (> 0); replaces Params::volume_stiffness there.
+  double volume_stiffness = 0.0;
+};
+
 /// Physical and numerical parameters. Params::preset() fills every field for a material;
 /// each field may then be overridden.
 ///
@@ -104,6 +114,11 @@ struct Params {
   /// Solids: lattice spacing, metres; 0 chooses it from the enclosed volume (about 150 interior
   /// nodes for elastic, 200 for stiff). Unused for cloth.
   double lattice_spacing = 0.0;
+  /// Solids: boxes with their own volume_stiffness. A lattice spring or a surface-to-lattice
+  /// tie takes the stiffness of the last region that contains its midpoint at rest (in mesh
+  /// coordinates, mapped to the rest positions by the best-fitting similarity transform,
+  /// which must fit them to 1e-6 of the mesh's size), else volume_stiffness. Default none.
+  std::vector<StiffnessRegion> regions;
   /// Rayleigh mass-proportional damping alpha, 1/s (air drag-like; also damps translation).
   double damping_alpha = 0.5;
   /// Rayleigh stiffness-proportional damping beta, s (damps relative motion along springs).
