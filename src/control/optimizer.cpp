@@ -662,6 +662,8 @@ void ControlOptimizer::set_options(const ControlOptions& options) {
     throw std::invalid_argument("occlusion_margin must be in [0, 1)");
   if (options.max_linearizations < 1)
     throw std::invalid_argument("max_linearizations must be >= 1");
+  if (!(options.linearized_ftol_initial >= 0.0 && options.linearized_ftol_initial < 1.0))
+    throw std::invalid_argument("linearized_ftol_initial must be in [0, 1)");
   if (options.constraint == ConstraintMode::hard && options.solver == ControlSolver::lbfgs)
     throw std::invalid_argument("the hard-constraint mode needs slsqp, mma, cobyla or ipopt");
   m_options = options;
@@ -1048,7 +1050,8 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
           ++evaluations;
           if (callbacks.progress) callbacks.progress({evaluations, e, std::min(e, e_cur)});
           if (e < e_cur) {
-            stop = e_cur - e <= m_options.ftol_rel * std::abs(e_cur);
+            stop = e_cur - e <= m_options.ftol_rel * std::abs(e_cur) ||
+                   e_cur - e < m_options.linearized_ftol_initial * std::abs(r.initial_energy);
             z_cur = z_try;
             e_cur = e;
             best_snapshot = problem.last_snapshot();

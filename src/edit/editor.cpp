@@ -133,6 +133,7 @@ ControlOptions control_options(const SceneControl& c) {
   o.clusters = c.clusters;
   o.linearized = c.linearized;
   o.max_linearizations = c.max_linearizations;
+  o.linearized_ftol_initial = c.linearized_tolerance;
   return o;
 }
 

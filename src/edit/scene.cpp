@@ -370,10 +370,10 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
 
   if (root["control"]) {
     const YAML::Node n = root["control"];
-    r.check_map(
-        n, "control",
-        {"enabled", "weights", "window", "solver", "gradient", "active_set", "max_iterations",
-         "warm_start", "margin", "force_bound", "clusters", "linearized", "max_linearizations"});
+    r.check_map(n, "control",
+                {"enabled", "weights", "window", "solver", "gradient", "active_set",
+                 "max_iterations", "warm_start", "margin", "force_bound", "clusters", "linearized",
+                 "max_linearizations", "linearized_tolerance"});
     SceneControl& c = s.control;
     for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
     if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
@@ -420,6 +420,12 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       c.max_linearizations = r.integer(n["max_linearizations"], "control.max_linearizations");
       if (c.max_linearizations < 1)
         r.fail(n["max_linearizations"], "control.max_linearizations", "must be at least 1");
+    }
+    if (n["linearized_tolerance"]) {
+      c.linearized_tolerance = r.number(n["linearized_tolerance"], "control.linearized_tolerance");
+      if (!(c.linearized_tolerance >= 0.0 && c.linearized_tolerance < 1.0))
+        r.fail(n["linearized_tolerance"], "control.linearized_tolerance",
+               "must be at least 0 and less than 1");
     }
     if (n["force_bound"]) {
       c.force_bound = r.number(n["force_bound"], "control.force_bound");
@@ -573,6 +579,7 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "clusters" << YAML::Value << c.clusters;
   e << YAML::Key << "linearized" << YAML::Value << c.linearized;
   e << YAML::Key << "max_linearizations" << YAML::Value << c.max_linearizations;
+  e << YAML::Key << "linearized_tolerance" << YAML::Value << c.linearized_tolerance;
   e << YAML::EndMap;
   e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "video" << YAML::Value << s.output.video.string();

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -63,6 +64,7 @@ struct SequenceResult {
   double ratio_median = 0.0;   // median over frames of control force / physical force
   int simulations = 0;         // window simulations of the optimizer (objective evaluations)
   int linearized_frames = 0;   // frames whose search ran on linearized dynamics
+  int linearizations = 0;      // outer iterations of the linearized search, all frames
 };
 
 // Runs frames 1..frames of the swung cloth board, with control (solver) or without.
@@ -78,11 +80,23 @@ SequenceResult run_sequence(const test::ClothScene& scene, const ControlOptions*
     out.violation_sum += scene.violation_pct(sim->positions(), f);
     out.simulations += r.evaluations;
     out.linearized_frames += r.linearized ? 1 : 0;
+    out.linearizations += r.linearizations;
     ratios.push_back(r.physical_force > 0.0 ? r.control_force / r.physical_force : 0.0);
   }
   std::sort(ratios.begin(), ratios.end());
   out.ratio_median = ratios[ratios.size() / 2];
   return out;
+}
+
+// The scene: a board anchored along one edge and swung 60 degrees back and forth in
+// 0.7 s (the cloth preset's bending), 36 frames.
+test::ClothScene swung_board() {
+  test::ClothScene scene(12, 8);
+  scene.amplitude_deg = 60.0;
+  scene.period_s = 0.7;
+  scene.bend_stiffness = 1e-4;
+  scene.frames = 36;
+  return scene;
 }
 
 class ClothEverySolver : public ::testing::TestWithParam<ControlSolver> {};
@@ -91,11 +105,7 @@ TEST_P(ClothEverySolver, ControlCutsTheViolationByNinetyPercentWithSmallForces) 
   // The scene: a board anchored along one edge and swung so that, without control,
   // its back turns to the camera. With control the violation summed over the sequence drops
   // by at least 90% while the median control / physical force ratio stays at most 0.25.
-  test::ClothScene scene(12, 8);
-  scene.amplitude_deg = 60.0;
-  scene.period_s = 0.7;
-  scene.bend_stiffness = 1e-4;  // the cloth preset's
-  scene.frames = 36;
+  const test::ClothScene scene = swung_board();
   const SequenceResult free = run_sequence(scene, nullptr);
   std::printf("without control: violation sum %.2f%%\n", free.violation_sum);
   ASSERT_GT(free.violation_sum / scene.frames, 2.0) << "the scene must expose the back";
@@ -115,28 +125,36 @@ TEST_P(ClothEverySolver, ControlCutsTheViolationByNinetyPercentWithSmallForces) 
 TEST(ControlCloth, NonlinearSearchAlsoCutsTheViolation) {
   // The same scene and criteria with linearized = false (every evaluation a simulation), the
   // path of engines with step_vjp() but no linearize_step(); the linearized search needs far
-  // fewer simulations for it.
-  test::ClothScene scene(12, 8);
-  scene.amplitude_deg = 60.0;
-  scene.period_s = 0.7;
-  scene.bend_stiffness = 1e-4;
-  scene.frames = 36;
+  // fewer simulations for it. And the linearized search's stop rule: with
+  // linearized_ftol_initial (default 1e-3) it stops after an outer iteration that lowers the
+  // energy by less than that fraction of the frame's initial energy; with 0 it runs all
+  // max_linearizations unless a move fails. The early stop saves linearizations and still
+  // meets the criteria.
+  const test::ClothScene scene = swung_board();
   const SequenceResult free = run_sequence(scene, nullptr);
   ControlOptions o;
   o.solver = ControlSolver::lbfgs;
   o.max_evaluations = 20;
   const SequenceResult linearized = run_sequence(scene, &o);
+  o.linearized_ftol_initial = 0.0;
+  const SequenceResult full = run_sequence(scene, &o);
   o.linearized = false;
   const SequenceResult nonlinear = run_sequence(scene, &o);
   std::printf(
-      "violation sum %.2f%%: linearized %.2f%% with %d simulations, nonlinear %.2f%% with %d\n",
-      free.violation_sum, linearized.violation_sum, linearized.simulations, nonlinear.violation_sum,
+      "violation sum %.2f%%: linearized %.3f%% with %d simulations and %d linearizations "
+      "(%.3f%% with %d without the stop rule), nonlinear %.3f%% with %d simulations\n",
+      free.violation_sum, linearized.violation_sum, linearized.simulations,
+      linearized.linearizations, full.violation_sum, full.linearizations, nonlinear.violation_sum,
       nonlinear.simulations);
   EXPECT_EQ(nonlinear.linearized_frames, 0);
   EXPECT_LE(nonlinear.violation_sum, 0.1 * free.violation_sum);
   EXPECT_LE(nonlinear.ratio_median, 0.25);
   EXPECT_LE(linearized.violation_sum, 0.1 * free.violation_sum);
+  EXPECT_LE(linearized.ratio_median, 0.25);
   EXPECT_LT(linearized.simulations, nonlinear.simulations);
+  EXPECT_LT(linearized.linearizations, full.linearizations);
+  o.linearized_ftol_initial = 1.0;  // a fraction of the initial energy: below 1
+  EXPECT_THROW(ControlOptimizer(scene.two_sided, {}, o), std::invalid_argument);
 }
 
 INSTANTIATE_TEST_SUITE_P(Solvers, ClothEverySolver,

@@ -210,6 +210,21 @@ TEST(SceneErrors, BadRegionsNameKeyAndLine) {
   EXPECT_NE(e.find("expected a list of regions"), std::string::npos) << e;
 }
 
+TEST(Scene, LinearizedTolerance) {
+  std::string text = kFull;
+  const std::string gradient = "  gradient: central";
+  EXPECT_DOUBLE_EQ(parse_scene(text, "/scenes/s.yaml").control.linearized_tolerance, 1e-3);
+  text.replace(text.find(gradient), gradient.size(), gradient + "\n  linearized_tolerance: 0");
+  const pbve::Scene s = parse_scene(text, "/scenes/s.yaml");
+  EXPECT_EQ(s.control.linearized_tolerance, 0.0);
+  EXPECT_EQ(parse_scene(pbve::scene_to_yaml(s), "/x/s.yaml").control.linearized_tolerance, 0.0);
+  text.replace(text.find("linearized_tolerance: 0"), 23, "linearized_tolerance: 1");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":23:"), std::string::npos) << e;
+  EXPECT_NE(e.find("control.linearized_tolerance"), std::string::npos) << e;
+  EXPECT_NE(e.find("less than 1"), std::string::npos) << e;
+}
+
 TEST(SceneErrors, MissingRequiredKey) {
   const std::string e = error_of(
       "input: {video: a.mp4}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\nobject: {mesh: m.obj}\n"

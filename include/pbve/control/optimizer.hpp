@@ -165,6 +165,12 @@ struct ControlOptions {
   /// max_linearizations outer iterations. Off: every evaluation simulates the window.
   bool linearized = true;
   int max_linearizations = 4;
+  /// Linearized search: it also stops after an outer iteration that lowers the true energy by
+  /// less than this fraction of the energy at the initial guess (0 = never). The first outer
+  /// iterations remove the violation, which dominates the initial energy; once a move gains
+  /// less than 0.1% of it, the next ones only trim the force terms further (example 1:
+  /// docs/benchmarks.md, Control optimizer).
+  double linearized_ftol_initial = 1e-3;
   /// Linearized search: relative energy tolerance of the solver on the model (at least
   /// ftol_rel).
   double model_ftol_rel = 1e-4;

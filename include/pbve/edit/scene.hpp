@@ -112,6 +112,8 @@ struct SceneControl {
   bool linearized = true;
   /// Outer iterations of the linearized search (ControlOptions::max_linearizations).
   int max_linearizations = 4;
+  /// Stop of the linearized search (ControlOptions::linearized_ftol_initial).
+  double linearized_tolerance = 1e-3;
   /// Key -> line of every key given under `control:` (for messages about combinations).
   std::map<std::string, int> given;
 };
