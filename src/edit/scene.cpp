@@ -5,6 +5,8 @@
 #include <cmath>
 #include <fstream>
 #include <sstream>
+#include <tuple>
+#include <utility>
 
 #include <yaml-cpp/yaml.h>
 
@@ -171,6 +173,17 @@ void require(const Reader& r, const YAML::Node& parent, const char* name,
                      "key '" + Reader::join(section, name) + "'");
 }
 
+/// A `box: {min: [x,y,z], max: [x,y,z]}` under `key`: both corners required, min <= max.
+std::pair<Eigen::Vector3d, Eigen::Vector3d> read_box(const Reader& r, const YAML::Node& b,
+                                                     const std::string& key) {
+  r.check_map(b, key, {"min", "max"});
+  require(r, b, "min", key);
+  require(r, b, "max", key);
+  const Eigen::Vector3d lo = r.vec3(b["min"], key + ".min"), hi = r.vec3(b["max"], key + ".max");
+  if ((lo.array() > hi.array()).any()) r.fail(b, key, "min must not exceed max in any coordinate");
+  return {lo, hi};
+}
+
 }  // namespace
 
 int Scene::line_of(const std::string& key) const {
@@ -283,14 +296,9 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
         }
       }
       if (a["box"]) {
-        const YAML::Node b = a["box"];
-        r.check_map(b, "object.anchors.box", {"min", "max"});
-        require(r, b, "min", "object.anchors.box");
-        require(r, b, "max", "object.anchors.box");
-        s.object.anchors.box_min = r.vec3(b["min"], "object.anchors.box.min");
-        s.object.anchors.box_max = r.vec3(b["max"], "object.anchors.box.max");
-        if ((s.object.anchors.box_min->array() > s.object.anchors.box_max->array()).any())
-          r.fail(b, "object.anchors.box", "min must not exceed max in any coordinate");
+        const auto [lo, hi] = read_box(r, a["box"], "object.anchors.box");
+        s.object.anchors.box_min = lo;
+        s.object.anchors.box_max = hi;
       }
     }
   }
@@ -336,14 +344,7 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
           for (const auto& rkv : e) {
             const std::string rk = rkv.first.as<std::string>();
             if (rk == "box") {
-              const YAML::Node b = rkv.second;
-              r.check_map(b, key + ".box", {"min", "max"});
-              require(r, b, "min", key + ".box");
-              require(r, b, "max", key + ".box");
-              region.box_min = r.vec3(b["min"], key + ".box.min");
-              region.box_max = r.vec3(b["max"], key + ".box.max");
-              if ((region.box_min.array() > region.box_max.array()).any())
-                r.fail(b, key + ".box", "min must not exceed max in any coordinate");
+              std::tie(region.box_min, region.box_max) = read_box(r, rkv.second, key + ".box");
             } else if (rkv.second.IsScalar()) {
               region.parameters[rk] = {r.number(rkv.second, key + "." + rk),
                                        rkv.second.Mark().line + 1};

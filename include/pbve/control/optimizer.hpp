@@ -169,7 +169,7 @@ struct ControlOptions {
   /// less than this fraction of the energy at the initial guess (0 = never). The first outer
   /// iterations remove the violation, which dominates the initial energy; once a move gains
   /// less than 0.1% of it, the next ones only trim the force terms further (example 1:
-  /// docs/benchmarks.md, Control optimizer).
+  /// docs/benchmarks.md, "The linearized search's stop rule").
   double linearized_ftol_initial = 1e-3;
   /// Linearized search: relative energy tolerance of the solver on the model (at least
   /// ftol_rel).
