@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Example 2 — elastic figurine (the paper's puppetry effect): a character-like figurine held at
-# its feet is pushed towards the camera and stopped, three times; edited into an elastic body
+# its feet is pushed towards the camera and stopped, again and again; edited into an elastic body
 # with a jelly belly (a soft region of its lattice) anchored at its feet, it nods over the belly
-# at every stop, showing the top of its head that the footage never shows, and swings back.
-# Without and with control, then plotted.
+# at every stop, showing the top of its head that the footage never shows; without control the
+# nods grow until it folds over, with control it stands back up. Both runs, then plotted.
 # Usage: examples/elastic_figurine/run.sh [OUT_DIR]   (after building the release preset)
 set -euo pipefail
 source "$(dirname "$0")/../common.sh"

@@ -286,8 +286,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     anchors = "{box: {min: [-1, -0.03, -1], max: [1, 0.001, 1]}}";
     // A jelly belly: the band from 4 to 24 cm above the feet is soft (1.4e5 Pa), the feet and
     // the head firmer (4e5 Pa). The elastic preset (2e4 Pa) cannot carry a 36 cm figurine's
-    // own weight, and a belly much softer than this folds over when pushed (at 1.3e5 Pa the
-    // upper body bends over backwards after the second push of `push`).
+    // own weight. This belly stands still and nods at single pushes, but the rhythm of `push`
+    // folds it over without control (the failure the controls prevent; docs/examples.md).
     extra_sim =
         "  volume_stiffness: 400000\n"
         "  regions: [{box: {min: [-1, -0.24, -1], max: [1, -0.04, 1]}, volume_stiffness: "
@@ -373,16 +373,17 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
       const double yaw = (amplitude * pi / 180.0) * (t < T ? std::sin(pi * s) : 0.0);
       R = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
     } else if (o.motion == "push") {
-      // Every 1.2 s: pushed 25 cm towards the camera, speeding up for 0.6 s (to 0.83 m/s),
-      // stopped abruptly, held 0.2 s and brought back smoothly in 0.4 s. What is soft pitches
-      // over the held part at every stop and swings back.
-      const double distance = 0.25;
-      const double c = std::fmod(t, 1.2);
+      // Every 0.96 s: pushed 18 cm towards the camera, speeding up for 0.48 s (to 0.75 m/s),
+      // stopped abruptly, held 0.16 s and brought back smoothly in 0.32 s. What is soft pitches
+      // over the held part at every stop; the pushes come at about the rhythm of the figurine's
+      // nod, so each one adds to the last.
+      const double distance = 0.18, push = 0.48, hold = 0.16, back = 0.32;
+      const double c = std::fmod(t, push + hold + back);
       double z = 1.0;
-      if (c < 0.6) {
-        z = (c / 0.6) * (c / 0.6);
-      } else if (c > 0.8) {
-        const double b = (c - 0.8) / 0.4;
+      if (c < push) {
+        z = (c / push) * (c / push);
+      } else if (c > push + hold) {
+        const double b = (c - push - hold) / back;
         z = 1.0 - b * b * (3.0 - 2.0 * b);
       }
       p.z() -= distance * z;
