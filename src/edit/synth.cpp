@@ -375,8 +375,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
     } else if (o.motion == "push") {
       // Every 0.96 s: pushed 18 cm towards the camera, speeding up for 0.48 s (to 0.75 m/s),
       // stopped abruptly, held 0.16 s and brought back smoothly in 0.32 s. What is soft pitches
-      // over the held part at every stop; the pushes come at about the rhythm of the figurine's
-      // nod, so each one adds to the last.
+      // over the held part at every stop; each push comes before the last nod has died out, so
+      // the nods grow.
       const double distance = 0.18, push = 0.48, hold = 0.16, back = 0.32;
       const double c = std::fmod(t, push + hold + back);
       double z = 1.0;
