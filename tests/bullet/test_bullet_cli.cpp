@@ -102,11 +102,9 @@ TEST(BulletFracture, StatuePiecesScatterAndControlKeepsUnseenFacesHidden) {
       dir.path().string());
   ASSERT_EQ(s.status, 0) << s.output;
   const fs::path scene = dir / "scene.yaml";
-  const CmdResult u =
-      pbve_cmd("edit " + scene.string() + " --no-control -o " + (dir / "free.mp4").string() +
-               " --report " + (dir / "free.json").string() + " --quiet");
+  const auto [u, c] =
+      pbve::test::edit_without_and_with_control(scene.string() + " --quiet", dir / "free");
   ASSERT_EQ(u.status, 0) << u.output;
-  const CmdResult c = pbve_cmd("edit " + scene.string() + " --quiet");
   ASSERT_EQ(c.status, 0) << c.output;
   const pbve::Report free = pbve::read_report(dir / "free.json");
   const pbve::Report ctrl = pbve::read_report(dir / "report.json");
@@ -176,11 +174,9 @@ TEST(BulletBoardToCloth, ControlKeepsTheBackOfTheSwungClothHidden) {
   ASSERT_EQ(s.status, 0) << s.output;
   const fs::path scene = dir / "scene.yaml";
   ASSERT_TRUE(replace_in(scene, "refine: 0.05", "refine: 0.1"));
-  const CmdResult u =
-      pbve_cmd("edit " + scene.string() + " --no-control -o " + (dir / "free.mp4").string() +
-               " --report " + (dir / "free.json").string() + " --quiet");
+  const auto [u, c] =
+      pbve::test::edit_without_and_with_control(scene.string() + " --quiet", dir / "free");
   ASSERT_EQ(u.status, 0) << u.output;
-  const CmdResult c = pbve_cmd("edit " + scene.string() + " --quiet");
   ASSERT_EQ(c.status, 0) << c.output;
   const pbve::Report free = pbve::read_report(dir / "free.json");
   const pbve::Report ctrl = pbve::read_report(dir / "report.json");
@@ -242,11 +238,9 @@ TEST(BulletFracture, PiecesFromAnObjWithOneGroupPerPiece) {
   const fs::path scene = dir / "scene.yaml";
   ASSERT_TRUE(replace_in(scene, "mesh: object.obj", "mesh: pieces.obj"));
   ASSERT_TRUE(replace_in(scene, "  fracture: {pieces: 8, seed: 1}\n", ""));
-  const CmdResult u =
-      pbve_cmd("edit " + scene.string() + " --no-control -o " + (dir / "free.mp4").string() +
-               " --report " + (dir / "free.json").string() + " --quiet");
+  const auto [u, c] =
+      pbve::test::edit_without_and_with_control(scene.string() + " --quiet", dir / "free");
   ASSERT_EQ(u.status, 0) << u.output;
-  const CmdResult c = pbve_cmd("edit " + scene.string() + " --quiet");
   ASSERT_EQ(c.status, 0) << c.output;
   for (const char* name : {"free.json", "report.json"}) {
     SCOPED_TRACE(name);

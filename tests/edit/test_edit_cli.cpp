@@ -98,11 +98,9 @@ TEST(EditCliControl, ControlReducesTheViolationOfTheSwungBoard) {
     return sum;
   };
   const std::string scene = (dir / "scene.yaml").string() + " --frames 14:36 --quiet";
-  CmdResult r = pbve_cmd("edit " + scene + " --no-control -o " + (dir / "u.mp4").string() +
-                         " --report " + (dir / "u.json").string());
-  ASSERT_EQ(r.status, 0) << r.output;
-  r = pbve_cmd("edit " + scene);
-  ASSERT_EQ(r.status, 0) << r.output;
+  const auto [u, c] = pbve::test::edit_without_and_with_control(scene, dir / "u");
+  ASSERT_EQ(u.status, 0) << u.output;
+  ASSERT_EQ(c.status, 0) << c.output;
   const pbve::Report free = pbve::read_report(dir / "u.json");
   const pbve::Report controlled = pbve::read_report(dir / "report.json");
   ASSERT_EQ(controlled.frames.size(), 22u);
@@ -126,24 +124,22 @@ TEST(EditCliControl, ControlKeepsThePushedFigurineFromShowingItsTop) {
       dir.path().string());
   ASSERT_EQ(s.status, 0) << s.output;
   const std::string scene = (dir / "scene.yaml").string() + " --quiet";
-  CmdResult r = pbve_cmd("edit " + scene + " --no-control -o " + (dir / "u.mp4").string() +
-                         " --report " + (dir / "u.json").string());
-  ASSERT_EQ(r.status, 0) << r.output;
-  r = pbve_cmd("edit " + scene);
-  ASSERT_EQ(r.status, 0) << r.output;
+  const auto [u, c] = pbve::test::edit_without_and_with_control(scene, dir / "u");
+  ASSERT_EQ(u.status, 0) << u.output;
+  ASSERT_EQ(c.status, 0) << c.output;
   const pbve::ReportSummary free = pbve::read_report(dir / "u.json").summary();
   const pbve::Report controlled = pbve::read_report(dir / "report.json");
   ASSERT_EQ(controlled.frames.size(), 60u);
-  const pbve::ReportSummary c = controlled.summary();
+  const pbve::ReportSummary with = controlled.summary();
   std::printf(
       "violation mean %.3f%% / max %.2f%% without control, %.3f%% / %.2f%% with; force "
       "ratio median %.3f\n",
-      free.violation_pct_mean, free.violation_pct_max, c.violation_pct_mean, c.violation_pct_max,
-      c.control_to_physical_force_median);
+      free.violation_pct_mean, free.violation_pct_max, with.violation_pct_mean,
+      with.violation_pct_max, with.control_to_physical_force_median);
   ASSERT_GE(free.violation_pct_mean, 5.0) << "the clip must expose the top without control";
-  EXPECT_LE(c.violation_pct_mean, 0.5);
-  EXPECT_LE(c.violation_pct_max, 2.0);
-  EXPECT_LE(c.control_to_physical_force_median, 0.25);
+  EXPECT_LE(with.violation_pct_mean, 0.5);
+  EXPECT_LE(with.violation_pct_max, 2.0);
+  EXPECT_LE(with.control_to_physical_force_median, 0.25);
 }
 
 TEST_F(EditCli, UnknownKeyFailsBeforeWritingAnything) {

@@ -41,6 +41,22 @@ inline CmdResult pbve_cmd(const std::string& args) {
   return r;
 }
 
+/// The two runs of `pbve edit` that the examples make: with `--no-control`, writing
+/// UNCONSTRAINED.mp4 and UNCONSTRAINED.json, then with the scene's control and its own outputs.
+/// SCENE_ARGS is the scene file and any further options; the second run is skipped (status -1)
+/// when the first fails.
+struct EditRuns {
+  CmdResult unconstrained, controlled;
+};
+inline EditRuns edit_without_and_with_control(const std::string& scene_args,
+                                              const std::filesystem::path& unconstrained) {
+  EditRuns r;
+  r.unconstrained = pbve_cmd("edit " + scene_args + " --no-control -o " + unconstrained.string() +
+                             ".mp4 --report " + unconstrained.string() + ".json");
+  if (r.unconstrained.status == 0) r.controlled = pbve_cmd("edit " + scene_args);
+  return r;
+}
+
 /// The whole content of a file ("" when it cannot be read).
 inline std::string read_text(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
