@@ -3,7 +3,7 @@
 // board of example 1 (cloth with layer ties, 3 substeps, swung by its held edge) at 494, ~1k,
 // 4k and 16k vertices, plus its linearization (linearize_step, jvp, vjp). For comparisons,
 // environment variables override parameters: SUBS (substeps), NTOL (newton_tolerance), SOLVER
-// (direct or iterative instead of the automatic linear solver choice).
+// (direct, iterative or multigrid instead of the automatic linear solver choice).
 
 #include <cmath>
 #include <cstdlib>
@@ -30,6 +30,7 @@ void set_solver(Params& prm) {
     const std::string name = s;
     if (name == "direct") prm.linear_solver = pbve::mass_spring::LinearSolver::direct;
     if (name == "iterative") prm.linear_solver = pbve::mass_spring::LinearSolver::iterative;
+    if (name == "multigrid") prm.linear_solver = pbve::mass_spring::LinearSolver::multigrid;
   }
 }
 
@@ -86,8 +87,16 @@ void BM_ClothVjp(benchmark::State& state) {
   in.control = Eigen::VectorXd::Constant(3 * sim.num_vertices(), 1e-5);
   sim.step(in);
   const Eigen::VectorXd g = sim.position_cotangent(pbve::Vertices::Ones(sim.num_vertices(), 3));
-  for (auto _ : state) benchmark::DoNotOptimize(sim.step_vjp(s0, in, g));
+  double cg = 0, fact = 0;
+  for (auto _ : state) {
+    const pbve::mass_spring::StepStats before = sim.last_stats();
+    benchmark::DoNotOptimize(sim.step_vjp(s0, in, g));
+    cg += sim.last_stats().cg_iterations - before.cg_iterations;
+    fact += sim.last_stats().factorizations - before.factorizations;
+  }
   state.counters["vertices"] = sim.num_vertices();
+  state.counters["cg_iters"] = benchmark::Counter(cg, benchmark::Counter::kAvgIterations);
+  state.counters["factorizations"] = benchmark::Counter(fact, benchmark::Counter::kAvgIterations);
 }
 
 // step_vjp from a state this simulator did not just step from (forward replay + backward).

@@ -279,6 +279,62 @@ TEST(MassSpringDerivatives, IterativeSolverGradientFiveSteps) {
   EXPECT_EQ(p.sim->last_stats().factorizations, 0);
 }
 
+TEST(MassSpringDerivatives, MultigridSolverGradientTwoSteps) {
+  // The same with multigrid-preconditioned CG (adjoint solves to a relative residual of
+  // 1e-11 as well), on a 14 x 14 cloth (two levels: the hierarchy stops at 96 nodes), over
+  // two steps.
+  Problem p = cloth_problem(0);
+  Params params = p.sim->params();
+  params.linear_solver = pbve::mass_spring::LinearSolver::multigrid;
+  const pbve::Mesh mesh = pbve::test::grid_mesh(14, 0.3);
+  p.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, 13}, params);
+  StepInput warm;
+  for (int i = 0; i < 3; ++i) p.sim->step(warm);
+  p.inputs = random_inputs(*p.sim, 2, 0.01, true, 7);
+  p.objective = random_objective(p.sim->positions(), 3);
+  check_controls(p, 1e-5);
+  EXPECT_GT(p.sim->last_stats().cg_iterations, 0);
+  EXPECT_EQ(p.sim->last_stats().factorizations, 0);
+}
+
+TEST(MassSpringDerivatives, MultigridSolverAdjointOfACompressedCloth) {
+  // A cloth squeezed to 70% of its rest size in its plane: its exact Hessian is indefinite
+  // (compressed springs have negative stiffness across them), so CG preconditioned by the
+  // multigrid of that matrix breaks down in the adjoint solves, which then run MINRES
+  // preconditioned by the multigrid of the projected Hessian, without factorizing. A buckling
+  // sheet is too far from smooth for central differences (they miss the adjoint by 86% here,
+  // with either solver), so the reference is the step's linearization (linearize_step), whose
+  // vjp() solves the same systems along the same trajectory by sparse factorizations (LDL^T
+  // when indefinite). MINRES stops at a relative residual of 1e-11 (adjoint_tolerance), so
+  // the two agree to that times the systems' condition number: the 1e-8 that
+  // check_linearization() asks of CG-based adjoints against the linearization.
+  Params params = Params::preset(Material::cloth);
+  params.newton_tolerance = 1e-12;
+  params.substeps = 3;
+  params.linear_solver = pbve::mass_spring::LinearSolver::multigrid;
+  const pbve::Mesh mesh = pbve::test::grid_mesh(16, 0.5);
+  MassSpringSimulator sim(mesh, std::vector<int>{0, 15}, params);
+  SimState s0 = sim.save();
+  for (int i = 0; i < mesh.num_vertices(); ++i) {
+    double* x = &s0.values[3 * static_cast<size_t>(i)];
+    x[0] *= 0.7;
+    x[1] *= 0.7;
+    x[2] += 1e-3 * std::sin(9.0 * x[0]) * std::cos(7.0 * x[1]);
+  }
+  sim.restore(s0);
+  const StepInput in = random_inputs(sim, 1, 0.01, false, 11).front();
+  sim.step(in);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const VectorXd g = VectorXd::NullaryExpr(sim.state_dim(), [&] { return n(rng); });
+  const int before = sim.last_stats().factorizations;
+  const pbve::StepVjp sv = sim.step_vjp(s0, in, g);
+  EXPECT_EQ(sim.last_stats().factorizations, before);
+  const pbve::StepVjp lv = sim.linearize_step(s0, in)->vjp(g);
+  EXPECT_LT(relative_error(sv.state, lv.state), 1e-8);
+  EXPECT_LT(relative_error(sv.control, lv.control), 1e-8);
+}
+
 }  // namespace
 
 namespace {

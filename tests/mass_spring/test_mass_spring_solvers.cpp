@@ -16,6 +16,7 @@
 
 #include "../../adapters/mass_spring/src/cholesky.hpp"
 #include "../../adapters/mass_spring/src/factor.hpp"
+#include "../../adapters/mass_spring/src/multigrid.hpp"
 #include "meshes.hpp"
 #include "pbve/edit/synth.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
@@ -107,6 +108,95 @@ TEST(MassSpringSolvers, CholeskySolvesAndIsReproducible) {
   EXPECT_TRUE(a.factorize(A));  // and the factor is usable again
 }
 
+// The stiffness graph of sheet_matrix(): k = 2000 N/m between 8-neighbours.
+SparseMatrix<double> sheet_strength(int n) {
+  std::vector<Eigen::Triplet<double>> t;
+  const int offsets[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      for (const auto& o : offsets) {
+        const int i2 = i + o[0], j2 = j + o[1];
+        if (i2 >= n || j2 < 0 || j2 >= n) continue;
+        t.emplace_back(j * n + i, j2 * n + i2, 2000.0);
+        t.emplace_back(j2 * n + i2, j * n + i, 2000.0);
+      }
+  SparseMatrix<double> S(n * n, n * n);
+  S.setFromTriplets(t.begin(), t.end());
+  return S;
+}
+
+// Preconditioned CG on A x = b from 0 to |r| <= tol |b|; returns the iterations (-1 if not
+// converged in 1000 or on breakdown).
+template <class Precondition>
+int pcg_iterations(const SparseMatrix<double>& A, const VectorXd& b, double tol,
+                   Precondition precondition, VectorXd& x) {
+  x = VectorXd::Zero(b.size());
+  VectorXd r = b, z;
+  precondition(r, z);
+  VectorXd p = z;
+  double rz = r.dot(z);
+  for (int it = 1; it <= 1000; ++it) {
+    const VectorXd Ap = A * p;
+    const double pAp = p.dot(Ap);
+    if (!(pAp > 0.0)) return -1;
+    x += (rz / pAp) * p;
+    r -= (rz / pAp) * Ap;
+    if (r.norm() <= tol * b.norm()) return it;
+    precondition(r, z);
+    const double rz_new = r.dot(z);
+    p = z + (rz_new / rz) * p;
+    rz = rz_new;
+  }
+  return -1;
+}
+
+TEST(MassSpringSolvers, MultigridIterationsDoNotGrowWithTheResolution) {
+  // Sheets of 16^2, 32^2 and 64^2 nodes: h^2 k / m grows 16x from the first to the last, and
+  // so does the condition number; block-Jacobi CG needs about sqrt(16) = 4x the iterations.
+  // A multigrid V-cycle's contraction is bounded independently of the mesh size, so its CG
+  // iteration count stays about the same: at most 1.5x that of the coarsest sheet is asked.
+  using pbve::mass_spring::detail::Multigrid;
+  using pbve::mass_spring::detail::MultigridHierarchy;
+  int mg[3], jac[3];
+  const int sizes[3] = {16, 32, 64};
+  for (int k = 0; k < 3; ++k) {
+    const int n = sizes[k];
+    VectorXd x0, x;
+    const SparseMatrix<double> A = sheet_matrix(n, 0.02, x0);
+    auto hierarchy = std::make_shared<const MultigridHierarchy>(A, sheet_strength(n));
+    EXPECT_GE(hierarchy->levels().size(), k == 0 ? 2u : 3u) << n;
+    Multigrid m(hierarchy);
+    ASSERT_TRUE(m.setup(A));
+    const VectorXd b = random_vector(A.rows(), 2);
+    mg[k] = pcg_iterations(
+        A, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { m.apply(r, z); }, x);
+    ASSERT_GT(mg[k], 0) << n;
+    EXPECT_LT((A * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
+    // The V-cycle is a symmetric positive definite operator.
+    const VectorXd u = random_vector(A.rows(), 3), v = random_vector(A.rows(), 4);
+    VectorXd Mu, Mv;
+    m.apply(u, Mu);
+    m.apply(v, Mv);
+    EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
+    EXPECT_GT(u.dot(Mu), 0.0);
+    const VectorXd d = A.diagonal();
+    jac[k] = pcg_iterations(
+        A, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { z = r.cwiseQuotient(d); }, x);
+  }
+  EXPECT_LE(mg[2], 1.5 * mg[0]) << mg[0] << " " << mg[1] << " " << mg[2];
+  EXPECT_LE(mg[1], 1.5 * mg[0]);
+  // The problem does get harder (else the check above would show nothing).
+  EXPECT_TRUE(jac[2] < 0 || jac[2] > 2 * jac[0]) << jac[0] << " " << jac[2];
+  // An indefinite matrix is refused.
+  VectorXd x0;
+  const SparseMatrix<double> A = sheet_matrix(32, 0.02, x0);
+  SparseMatrix<double> I(A.rows(), A.cols());
+  I.setIdentity();
+  Multigrid m(std::make_shared<const MultigridHierarchy>(A, sheet_strength(32)));
+  EXPECT_FALSE(m.setup(A - 2.0 * A.diagonal().mean() * I));
+  EXPECT_TRUE(m.setup(A));
+}
+
 TEST(MassSpringSolvers, IndefiniteMatricesFallBackToLdlt) {
   VectorXd x0;
   const SparseMatrix<double> A = sheet_matrix(20, 0.02, x0);
@@ -173,7 +263,7 @@ TEST(MassSpringSolvers, ParallelClonesReproduceSerialRuns) {
   // one symbolic analysis and BLAS runs in the calling thread.
   // (The iterative solver keeps no factorization between calls; its determinism is the
   // conformance suite's.)
-  for (LinearSolver solver : {LinearSolver::direct}) {
+  for (LinearSolver solver : {LinearSolver::direct, LinearSolver::multigrid}) {
     const Board board = make_board(0.035);
     MassSpringSimulator sim(board.mesh, board.anchors, board_params(solver, 1e-6));
     for (int f = 1; f <= 2; ++f) sim.step(board.input(f));
@@ -209,7 +299,7 @@ TEST(MassSpringSolvers, ParallelClonesReproduceSerialRuns) {
     for (std::thread& t : threads) t.join();
     for (int k = 0; k < probes; ++k) {
       EXPECT_TRUE(bit_equal(serial[static_cast<size_t>(k)], parallel[static_cast<size_t>(k)]))
-          << "probe " << k << (solver == LinearSolver::direct ? " direct" : " iterative");
+          << "probe " << k << (solver == LinearSolver::direct ? " direct" : " multigrid");
       const VectorXd& a = serial_jvp[static_cast<size_t>(k)];
       const VectorXd& b = parallel_jvp[static_cast<size_t>(k)];
       ASSERT_EQ(a.size(), b.size());

@@ -201,9 +201,13 @@ struct MassSpringSimulator::Impl {
   // against about 7 for a factorization) makes the next one factorize anew.
   static constexpr int refactor_iterations = 6;
   static constexpr int max_reuse_iterations = 25;
+  // Multigrid-preconditioned CG: iteration counts do not grow with the resolution, so a solve
+  // that needs more than this has met an indefinite or ill-posed matrix.
+  static constexpr int max_multigrid_iterations = 200;
   int last_reuse_iterations = 0;
   int solves_in_call = 0;         // linear_solve() calls since begin_call()
   std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
+  detail::Multigrid multigrid;    // LinearSolver::multigrid: set up per solve
   // Adjoint solves of indefinite exact Hessians: LL^T, else LDL^T, else LU (a copy starts
   // empty).
   struct Fallback {
@@ -416,6 +420,7 @@ struct MassSpringSimulator::Impl {
       case LinearSolver::direct:
         return true;
       case LinearSolver::iterative:
+      case LinearSolver::multigrid:
         return false;
       case LinearSolver::automatic:
         break;
@@ -425,6 +430,8 @@ struct MassSpringSimulator::Impl {
                           : P().direct_solver_max_dofs;
     return dofs <= static_cast<size_t>(limit);
   }
+  bool use_block_jacobi() const { return P().linear_solver == LinearSolver::iterative; }
+  bool use_multigrid() const { return !use_direct() && !use_block_jacobi(); }
 
   // y = J x for the symmetric J stored with both triangles: row i is column i (parallel gather).
   void spmv(const VectorXd& xin, VectorXd& yout) const {
@@ -494,6 +501,26 @@ struct MassSpringSimulator::Impl {
     return false;
   }
 
+  // The model's multigrid hierarchy: aggregates from the springs between free nodes, weighted
+  // by their stiffness.
+  std::shared_ptr<const detail::MultigridHierarchy> multigrid_hierarchy() const {
+    const Model& m = *model;
+    return m.multigrid->get([&m] {
+      const auto n = static_cast<Eigen::Index>(m.free_nodes.size());
+      std::vector<Eigen::Triplet<double>> links;
+      for (const Spring& sp : m.springs) {
+        const int fa = m.free_index[static_cast<size_t>(sp.a)];
+        const int fb = m.free_index[static_cast<size_t>(sp.b)];
+        if (fa < 0 || fb < 0 || fa == fb) continue;
+        links.emplace_back(fa, fb, sp.k);
+        links.emplace_back(fb, fa, sp.k);
+      }
+      Eigen::SparseMatrix<double> strength(n, n);
+      strength.setFromTriplets(links.begin(), links.end());
+      return std::make_shared<const detail::MultigridHierarchy>(m.pattern, strength);
+    });
+  }
+
   // Block-Jacobi preconditioner (built from the current J by build_preconditioner()).
   void apply_block_jacobi(const VectorXd& in, VectorXd& out) const {
     out.resize(in.size());
@@ -507,8 +534,11 @@ struct MassSpringSimulator::Impl {
   // factorizes J into it, and a solve after a stalled one factorizes J into `work`. So a step
   // costs about one factorization, none when `base` is reused. A new factorization runs the
   // same CG as a reused one (converging at once), so a result does not depend on whether
-  // `base` was kept from an earlier call: replays and clones match bit for bit. Iterative
-  // mode: block-Jacobi CG. Returns false if J could not be factorized or CG failed.
+  // `base` was kept from an earlier call: replays and clones match bit for bit. Multigrid
+  // mode: CG preconditioned by a V-cycle set up for this J (nothing kept between solves).
+  // Iterative mode: block-Jacobi CG. Returns false if J could not be factorized (or, with
+  // multigrid, has a diagonal block or coarsest matrix that is not positive definite) or CG
+  // failed.
   //
   // `exact`: J holds the exact Hessian, which may be indefinite. A step's first solve factorizes
   // it into `base` when `base` is not kept; if that fails, `base` then holds the projected matrix
@@ -517,6 +547,13 @@ struct MassSpringSimulator::Impl {
   template <class Stop>
   bool linear_solve(const VectorXd& b, VectorXd& xout, Stop stop, bool exact = false) {
     const bool first = solves_in_call++ == 0;
+    if (use_multigrid()) {
+      if (multigrid.empty()) multigrid = detail::Multigrid(multigrid_hierarchy());
+      if (!multigrid.setup(J)) return false;
+      return pcg(
+          b, xout, [this](const VectorXd& in, VectorXd& out) { multigrid.apply(in, out); }, stop,
+          max_multigrid_iterations);
+    }
     if (!use_direct()) {
       build_preconditioner();
       return pcg(
@@ -543,6 +580,64 @@ struct MassSpringSimulator::Impl {
     }
     active = &slot;
     return cg();
+  }
+
+  // Solves J x = b for the exact Hessian J at y (symmetric, possibly indefinite) by MINRES
+  // preconditioned with the multigrid V-cycle of the projected Hessian (positive definite),
+  // until |b - J x| <= target. Leaves J holding the exact Hessian. Returns false if the
+  // preconditioner could not be set up or MINRES did not converge.
+  bool indefinite_multigrid_solve(const VectorXd& y, const Lag& lag, double h, const VectorXd& b,
+                                  double target, VectorXd& xout) {
+    assemble(y, lag, h, false);
+    const bool ready = multigrid.setup(J);
+    assemble(y, lag, h, true);
+    if (!ready) return false;
+    const Eigen::Index n = b.size();
+    xout = VectorXd::Zero(n);
+    if (b.norm() <= target) return true;
+    // Preconditioned MINRES (Lanczos in the preconditioner's inner product, Givens QR),
+    // after Elman, Silvester and Wathen, "Finite Elements and Fast Iterative Solvers", 2.4.
+    VectorXd v_old = VectorXd::Zero(n), v = b, v_new, z, z_new, w_old = VectorXd::Zero(n),
+             w = VectorXd::Zero(n), w_new, Az, res;
+    multigrid.apply(v, z);
+    double gamma_old = 1.0, gamma = std::sqrt(std::max(v.dot(z), 0.0));
+    if (!(gamma > 0.0)) return false;
+    double eta = gamma, c_old = 1.0, c = 1.0, s_old = 0.0, s = 0.0;
+    for (int it = 1; it <= 5 * max_multigrid_iterations; ++it) {
+      z /= gamma;
+      spmv(z, Az);
+      const double delta = Az.dot(z);
+      v_new = Az - (delta / gamma) * v - (gamma / gamma_old) * v_old;
+      multigrid.apply(v_new, z_new);
+      const double gamma_new = std::sqrt(std::max(v_new.dot(z_new), 0.0));
+      const double a0 = c * delta - c_old * s * gamma;
+      const double a1 = std::hypot(a0, gamma_new);
+      const double a2 = s * delta + c_old * c * gamma;
+      const double a3 = s_old * gamma;
+      if (!(a1 > 0.0)) return false;
+      const double c_new = a0 / a1, s_new = gamma_new / a1;
+      w_new = (z - a3 * w_old - a2 * w) / a1;
+      xout += (c_new * eta) * w_new;
+      eta = -s_new * eta;
+      ++stats.cg_iterations;
+      if (it % 5 == 0 || gamma_new == 0.0) {
+        spmv(xout, res);
+        if ((b - res).norm() <= target) return true;
+        if (gamma_new == 0.0) return false;
+      }
+      v_old.swap(v);
+      v.swap(v_new);
+      z.swap(z_new);
+      w_old.swap(w);
+      w.swap(w_new);
+      gamma_old = gamma;
+      gamma = gamma_new;
+      c_old = c;
+      c = c_new;
+      s_old = s;
+      s = s_new;
+    }
+    return false;
   }
 
   // Largest per-node position-like size max_i |s_i| / m_i of a residual on free rows.
@@ -622,7 +717,7 @@ struct MassSpringSimulator::Impl {
       const VectorXd rf = gather_free(r);
       // Inexact Newton: solve to 1e-4 of the current residual (1e-3 with block Jacobi), but at
       // least to a tenth of the Newton tolerance (mass-scaled, i.e. in metres).
-      const double forcing = use_direct() ? 1e-4 : 1e-3;
+      const double forcing = use_block_jacobi() ? 1e-3 : 1e-4;
       const double target = std::max(forcing * mass_scaled_inf(rf), 0.1 * tol);
       auto stop = [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; };
       // The exact Hessian while conjugate gradients find it positive definite (quadratic
@@ -637,7 +732,7 @@ struct MassSpringSimulator::Impl {
       }
       if (!solved) {
         assemble(y, lag, h, false);
-        if (!linear_solve(rf, dy_free, stop) && use_direct()) return -it;
+        if (!linear_solve(rf, dy_free, stop) && !use_block_jacobi()) return -it;
       }
       dy_free = -dy_free;
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
@@ -919,7 +1014,10 @@ struct MassSpringSimulator::Impl {
         // CG preconditioned by the factorization of a later substep's matrix (refactorized
         // when that stalls). The exact Hessian may be indefinite (compressed springs): LL^T
         // then fails and the system is solved by LDL^T, else LU.
-        if (!linear_solve(Gf, lf, [&](const VectorXd& res) { return res.norm() <= target; })) {
+        // With the multigrid solver: MINRES on the exact (indefinite) matrix, preconditioned
+        // by the multigrid of the projected one, before factorizing.
+        if (!linear_solve(Gf, lf, [&](const VectorXd& res) { return res.norm() <= target; }) &&
+            !(use_multigrid() && indefinite_multigrid_solve(y, lag, h, Gf, target, lf))) {
           if (!fallback.factor)
             fallback.factor = std::make_unique<detail::SymmetricFactor>(analysis());
           ++stats.factorizations;

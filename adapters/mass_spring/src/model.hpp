@@ -12,6 +12,7 @@
 
 #include "cholesky.hpp"
 #include "factor.hpp"
+#include "multigrid.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/core/thin_sheet.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
@@ -49,6 +50,10 @@ struct Model {
   std::shared_ptr<SharedCholeskyAnalysis> cholesky = std::make_shared<SharedCholeskyAnalysis>();
   // Factorizations of that pattern for reuse (step linearizations), shared by every clone.
   std::shared_ptr<FactorPool> factor_pool = std::make_shared<FactorPool>();
+  // Multigrid hierarchy of `pattern` (LinearSolver::multigrid), made on first use and shared by
+  // every clone.
+  std::shared_ptr<SharedMultigridHierarchy> multigrid =
+      std::make_shared<SharedMultigridHierarchy>();
 };
 
 /// The sheet of a thin closed cloth (Params::single_sheet), or nothing when the surface does not

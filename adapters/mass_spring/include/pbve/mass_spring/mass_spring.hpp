@@ -42,7 +42,7 @@ std::string to_string(Material m);
 
 /// Linear solver of the Newton and adjoint systems (sparse, symmetric).
 enum class LinearSolver {
-  automatic,  ///< direct below Params::direct_solver_max_dofs free unknowns, iterative above
+  automatic,  ///< direct up to Params::direct_solver_max_dofs free unknowns, multigrid above
   /// sparse LL^T (CHOLMOD supernodal, pattern analyzed once and shared by clones), factorized
   /// about once per substep: later Newton iterations and substeps run conjugate gradients
   /// preconditioned by that factorization, and factorize again only if those stall
@@ -50,6 +50,14 @@ enum class LinearSolver {
   /// conjugate gradients with a 3x3 block-Jacobi preconditioner (no factorization: least
   /// memory, but the iteration count grows with the resolution)
   iterative,
+  /// conjugate gradients preconditioned by one smoothed-aggregation multigrid V-cycle (the
+  /// aggregates and prolongators built once per model from the springs, the coarse matrices
+  /// formed per Newton matrix): setup and iterations cost time linear in the number of nodes.
+  /// Indefinite adjoint systems (exact Hessian of compressed springs) run MINRES preconditioned
+  /// by the multigrid of the projected Hessian. Measured (docs/benchmarks.md, mass_spring):
+  /// a cloth step 2.1x faster than `direct` at 1k vertices, 2.9x at 4k, 1.7x at 16k; slower
+  /// (1.5-1.8x) on example 1's thin board, whose two layers are tied (layer_stiffness > 0)
+  multigrid,
 };
 
 /// A collision plane: nodes are kept on the side `normal` points to (penalty contact with
@@ -142,10 +150,11 @@ struct Params {
   double newton_tolerance = 1e-6;
   /// Linear solver choice.
   LinearSolver linear_solver = LinearSolver::automatic;
-  /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node).
-  /// Measured (docs/benchmarks.md, mass_spring): with Newton on the exact Hessian the direct
-  /// solver is as fast as block-Jacobi CG or faster at every cloth size up to 16k vertices
-  /// (about 49k unknowns), and 4x faster on example 1's board at 3k vertices.
+  /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node)
+  /// and the multigrid solver above; 0 means multigrid always. The direct solver's cost grows
+  /// about as n^1.5 (docs/benchmarks.md, mass_spring), the multigrid solver's about linearly
+  /// but it is slower on example 1's tied two-layer board; on a plain cloth multigrid is the
+  /// faster from about 1k vertices (set 0 there).
   int direct_solver_max_dofs = 60000;
   /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0):
   /// there block-Jacobi CG needs thousands of iterations per solve, and factorizing is 5-7x
