@@ -175,12 +175,16 @@ std::vector<StepInput> random_inputs(const MassSpringSimulator& sim, int steps, 
   return out;
 }
 
-Problem cloth_problem(int steps) {
+// An n x n cloth held at two corners, `steps` random inputs after 3 warm-up steps.
+Problem cloth_problem(
+    int steps, int n = 6,
+    pbve::mass_spring::LinearSolver solver = pbve::mass_spring::LinearSolver::automatic) {
   Params p = Params::preset(Material::cloth);
   p.newton_tolerance = 1e-12;
-  const pbve::Mesh mesh = pbve::test::grid_mesh(6, 0.3);
+  p.linear_solver = solver;
+  const pbve::Mesh mesh = pbve::test::grid_mesh(n, 0.3);
   Problem pr;
-  pr.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, 5}, p);
+  pr.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, n - 1}, p);
   // Let it swing first so springs are stretched and velocities are non-zero.
   StepInput warm;
   for (int i = 0; i < 3; ++i) pr.sim->step(warm);
@@ -266,14 +270,7 @@ namespace {
 TEST(MassSpringDerivatives, IterativeSolverGradientFiveSteps) {
   // Same cloth problem with the conjugate-gradient solver: the adjoint solve is converged to a
   // relative residual of 1e-11, far below the 1e-4 target.
-  Problem p = cloth_problem(0);
-  Params params = p.sim->params();
-  params.linear_solver = pbve::mass_spring::LinearSolver::iterative;
-  const pbve::Mesh mesh = pbve::test::grid_mesh(6, 0.3);
-  p.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, 5}, params);
-  StepInput warm;
-  for (int i = 0; i < 3; ++i) p.sim->step(warm);
-  p.inputs = random_inputs(*p.sim, 5, 0.01, true, 7);
+  Problem p = cloth_problem(5, 6, pbve::mass_spring::LinearSolver::iterative);
   check_controls(p, 1e-5);
   EXPECT_GT(p.sim->last_stats().cg_iterations, 0);
   EXPECT_EQ(p.sim->last_stats().factorizations, 0);
@@ -283,15 +280,7 @@ TEST(MassSpringDerivatives, MultigridSolverGradientTwoSteps) {
   // The same with multigrid-preconditioned CG (adjoint solves to a relative residual of
   // 1e-11 as well), on a 14 x 14 cloth (two levels: the hierarchy stops at 96 nodes), over
   // two steps.
-  Problem p = cloth_problem(0);
-  Params params = p.sim->params();
-  params.linear_solver = pbve::mass_spring::LinearSolver::multigrid;
-  const pbve::Mesh mesh = pbve::test::grid_mesh(14, 0.3);
-  p.sim = std::make_unique<MassSpringSimulator>(mesh, std::vector<int>{0, 13}, params);
-  StepInput warm;
-  for (int i = 0; i < 3; ++i) p.sim->step(warm);
-  p.inputs = random_inputs(*p.sim, 2, 0.01, true, 7);
-  p.objective = random_objective(p.sim->positions(), 3);
+  Problem p = cloth_problem(2, 14, pbve::mass_spring::LinearSolver::multigrid);
   check_controls(p, 1e-5);
   EXPECT_GT(p.sim->last_stats().cg_iterations, 0);
   EXPECT_EQ(p.sim->last_stats().factorizations, 0);

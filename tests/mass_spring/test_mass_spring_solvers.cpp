@@ -35,6 +35,18 @@ using pbve::mass_spring::MassSpringSimulator;
 using pbve::mass_spring::Material;
 using pbve::mass_spring::Params;
 
+// Calls f(a, b) once per spring of an n x n sheet: each node to its 8 neighbours.
+template <class F>
+void for_each_sheet_spring(int n, F f) {
+  const int offsets[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      for (const auto& o : offsets) {
+        const int i2 = i + o[0], j2 = j + o[1];
+        if (i2 < n && j2 >= 0 && j2 < n) f(j * n + i, j2 * n + i2);
+      }
+}
+
 // The system matrix of a backward Euler substep of an n x n sheet of side 1 m (x-y plane,
 // slightly wrinkled in z) with springs to the 8 neighbours: m (1 + h alpha) I per node plus
 // h^2 k [(1 - t) u u^T + t I] per spring (t: stretch of the spring), with the cloth preset's
@@ -53,21 +65,15 @@ SparseMatrix<double> sheet_matrix(int n, double stretch, VectorXd& positions) {
       for (int r = 0; r < 3; ++r) t.emplace_back(3 * a + r, 3 * b + c, B(r, c));
   };
   for (int a = 0; a < n * n; ++a) add(a, a, m * 1.005 * Matrix3d::Identity());
-  const int offsets[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i)
-      for (const auto& o : offsets) {
-        const int i2 = i + o[0], j2 = j + o[1];
-        if (i2 >= n || j2 < 0 || j2 >= n) continue;
-        const int a = j * n + i, b = j2 * n + i2;
-        const Vector3d u = (positions.segment<3>(3 * b) - positions.segment<3>(3 * a)).normalized();
-        const Matrix3d B =
-            h * h * k * ((1.0 - stretch) * u * u.transpose() + stretch * Matrix3d::Identity());
-        add(a, a, B);
-        add(b, b, B);
-        add(a, b, -B);
-        add(b, a, -B);
-      }
+  for_each_sheet_spring(n, [&](int a, int b) {
+    const Vector3d u = (positions.segment<3>(3 * b) - positions.segment<3>(3 * a)).normalized();
+    const Matrix3d B =
+        h * h * k * ((1.0 - stretch) * u * u.transpose() + stretch * Matrix3d::Identity());
+    add(a, a, B);
+    add(b, b, B);
+    add(a, b, -B);
+    add(b, a, -B);
+  });
   SparseMatrix<double> A(3 * n * n, 3 * n * n);
   A.setFromTriplets(t.begin(), t.end());
   A.makeCompressed();
@@ -111,15 +117,10 @@ TEST(MassSpringSolvers, CholeskySolvesAndIsReproducible) {
 // The stiffness graph of sheet_matrix(): k = 2000 N/m between 8-neighbours.
 SparseMatrix<double> sheet_strength(int n) {
   std::vector<Eigen::Triplet<double>> t;
-  const int offsets[4][2] = {{1, 0}, {0, 1}, {1, 1}, {1, -1}};
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i)
-      for (const auto& o : offsets) {
-        const int i2 = i + o[0], j2 = j + o[1];
-        if (i2 >= n || j2 < 0 || j2 >= n) continue;
-        t.emplace_back(j * n + i, j2 * n + i2, 2000.0);
-        t.emplace_back(j2 * n + i2, j * n + i, 2000.0);
-      }
+  for_each_sheet_spring(n, [&](int a, int b) {
+    t.emplace_back(a, b, 2000.0);
+    t.emplace_back(b, a, 2000.0);
+  });
   SparseMatrix<double> S(n * n, n * n);
   S.setFromTriplets(t.begin(), t.end());
   return S;
