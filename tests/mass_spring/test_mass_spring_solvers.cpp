@@ -198,6 +198,52 @@ TEST(MassSpringSolvers, MultigridIterationsDoNotGrowWithTheResolution) {
   EXPECT_TRUE(m.setup(A));
 }
 
+TEST(MassSpringSolvers, MultigridProductAndFinestLevelUpdate) {
+  // The V-cycle and the product read the upper triangle only: J x must match the full
+  // matrix's product to rounding. A setup that takes a new finest matrix and keeps the coarse
+  // levels of an earlier one (the next Newton iterations of a substep) must give J's product,
+  // a symmetric positive definite V-cycle, and CG iterations close to a full setup's.
+  using pbve::mass_spring::detail::Multigrid;
+  using pbve::mass_spring::detail::MultigridHierarchy;
+  VectorXd x0;
+  const SparseMatrix<double> A1 = sheet_matrix(48, 0.02, x0);
+  const SparseMatrix<double> A2 = sheet_matrix(48, 0.05, x0);
+  ASSERT_GT((A1 - A2).norm(), 1e-3 * A1.norm());
+  auto hierarchy = std::make_shared<const MultigridHierarchy>(A1, sheet_strength(48));
+  ASSERT_GE(hierarchy->levels().size(), 3u);
+  Multigrid full(hierarchy), kept(hierarchy);
+  ASSERT_TRUE(full.setup(A2));
+  ASSERT_TRUE(kept.setup(A2, false));  // no earlier full setup: a full one
+  ASSERT_TRUE(kept.setup(A1));
+  ASSERT_TRUE(kept.setup(A2, false));
+  const VectorXd u = random_vector(A2.rows(), 7), v = random_vector(A2.rows(), 8);
+  VectorXd Ju;
+  kept.multiply(u, Ju);
+  const VectorXd ref = A2 * u;
+  // Each entry sums 39 products in another order: a few units of rounding of |A| |u|.
+  const VectorXd scale = A2.cwiseAbs() * u.cwiseAbs();
+  EXPECT_LT(((Ju - ref).cwiseQuotient(scale)).cwiseAbs().maxCoeff(), 1e-14);
+  VectorXd Mu, Mv;
+  kept.apply(u, Mu);
+  kept.apply(v, Mv);
+  EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
+  EXPECT_GT(u.dot(Mu), 0.0);
+  VectorXd x;
+  const VectorXd b = random_vector(A2.rows(), 9);
+  const int with_full = pcg_iterations(
+      A2, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { full.apply(r, z); }, x);
+  const int with_kept = pcg_iterations(
+      A2, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { kept.apply(r, z); }, x);
+  ASSERT_GT(with_full, 0);
+  ASSERT_GT(with_kept, 0);
+  EXPECT_LT((A2 * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
+  EXPECT_LE(with_kept, 1.5 * with_full) << with_full << " " << with_kept;
+  // The finest level still refuses an indefinite matrix.
+  SparseMatrix<double> I(A2.rows(), A2.cols());
+  I.setIdentity();
+  EXPECT_FALSE(kept.setup(A2 - 2.0 * A2.diagonal().mean() * I, false));
+}
+
 TEST(MassSpringSolvers, IndefiniteMatricesFallBackToLdlt) {
   VectorXd x0;
   const SparseMatrix<double> A = sheet_matrix(20, 0.02, x0);

@@ -208,6 +208,10 @@ struct MassSpringSimulator::Impl {
   int solves_in_call = 0;         // linear_solve() calls since begin_call()
   std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
   detail::Multigrid multigrid;    // LinearSolver::multigrid: set up per solve
+  // The next multigrid setup recomputes the coarse levels (set at each substep's start, so
+  // that a step's result depends only on its start and input; later solves of the substep
+  // keep the coarse levels and take only the new finest matrix).
+  bool multigrid_coarse_stale = true;
   // Adjoint solves of indefinite exact Hessians: LL^T, else LDL^T, else LU (a copy starts
   // empty).
   struct Fallback {
@@ -469,12 +473,18 @@ struct MassSpringSimulator::Impl {
     }
   }
 
-  // Preconditioned conjugate gradients on J x = b from x = 0, with z = precondition(r).
-  // Stops when stop(residual) holds. Returns false on breakdown (non-positive curvature) or no
-  // convergence within max_iterations.
+  // Preconditioned conjugate gradients on J x = b from x = 0, with z = precondition(r) and the
+  // product J p = multiply(p) (spmv() unless given). Stops when stop(residual) holds. Returns
+  // false on breakdown (non-positive curvature) or no convergence within max_iterations.
   template <class Precondition, class Stop>
   bool pcg(const VectorXd& b, VectorXd& xout, Precondition precondition, Stop stop,
            int max_iterations) {
+    return pcg(b, xout, precondition, stop, max_iterations,
+               [this](const VectorXd& in, VectorXd& out) { spmv(in, out); });
+  }
+  template <class Precondition, class Stop, class Multiply>
+  bool pcg(const VectorXd& b, VectorXd& xout, Precondition precondition, Stop stop,
+           int max_iterations, Multiply multiply) {
     const Eigen::Index n = b.size();
     xout = VectorXd::Zero(n);
     VectorXd r = b, z(n), p, Ap;
@@ -484,7 +494,7 @@ struct MassSpringSimulator::Impl {
     double rz = r.dot(z);
     if (!(rz > 0.0)) return false;  // not a positive definite preconditioner
     for (int it = 0; it < max_iterations; ++it) {
-      spmv(p, Ap);
+      multiply(p, Ap);
       const double pAp = p.dot(Ap);
       if (!(pAp > 0.0)) return false;
       const double a = rz / pAp;
@@ -549,10 +559,17 @@ struct MassSpringSimulator::Impl {
     const bool first = solves_in_call++ == 0;
     if (use_multigrid()) {
       if (multigrid.empty()) multigrid = detail::Multigrid(multigrid_hierarchy());
-      if (!multigrid.setup(J)) return false;
-      return pcg(
+      const bool ready = multigrid.setup(J, multigrid_coarse_stale);
+      multigrid_coarse_stale = !ready;
+      if (!ready) return false;
+      const bool ok = pcg(
           b, xout, [this](const VectorXd& in, VectorXd& out) { multigrid.apply(in, out); }, stop,
-          max_multigrid_iterations);
+          max_multigrid_iterations,
+          [this](const VectorXd& in, VectorXd& out) { multigrid.multiply(in, out); });
+      // J may be indefinite, and so may be coarse levels made from it: the next matrix (the
+      // projected Hessian) gets its own.
+      multigrid_coarse_stale = !ok;
+      return ok;
     }
     if (!use_direct()) {
       build_preconditioner();
@@ -589,7 +606,8 @@ struct MassSpringSimulator::Impl {
   bool indefinite_multigrid_solve(const VectorXd& y, const Lag& lag, double h, const VectorXd& b,
                                   double target, VectorXd& xout) {
     assemble(y, lag, h, false);
-    const bool ready = multigrid.setup(J);
+    const bool ready = multigrid.setup(J, multigrid_coarse_stale);
+    multigrid_coarse_stale = !ready;
     assemble(y, lag, h, true);
     if (!ready) return false;
     const Eigen::Index n = b.size();
@@ -709,6 +727,7 @@ struct MassSpringSimulator::Impl {
     for (size_t k = 0; k < m.anchors.size(); ++k)
       y.segment<3>(3 * m.anchors[k]) = ya.segment<3>(3 * static_cast<Eigen::Index>(k));
     if (m.free_nodes.empty()) return 0;
+    multigrid_coarse_stale = true;
     const double tol = P().newton_tolerance * m.char_length;
     VectorXd r, dy_free, trial;
     bool exact = true;
@@ -1008,6 +1027,7 @@ struct MassSpringSimulator::Impl {
       lam.setZero();
       if (!m.free_nodes.empty()) {
         assemble(y, lag, h, true);
+        multigrid_coarse_stale = true;
         const VectorXd Gf = gather_free(G);
         VectorXd lf;
         const double target = P().adjoint_tolerance * Gf.norm();

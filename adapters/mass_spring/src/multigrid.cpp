@@ -191,32 +191,20 @@ Blocks build_plans(Level& level) {
   return next;
 }
 
-// out = A x (block rows).
-void multiply(const Blocks& A, const std::vector<Block>& val, const Vector& x, Vector& out) {
-  out.resize(x.size());
+// The strict upper triangle of A by rows; src[e] is entry e's block in A.
+Blocks upper_of(const Blocks& A, std::vector<int>& src) {
+  Blocks U;
+  U.start.assign(1, 0);
+  src.clear();
   for (int i = 0; i < A.rows(); ++i) {
-    Vec3 acc = Vec3::Zero();
     for (int e = A.start[static_cast<size_t>(i)]; e < A.start[static_cast<size_t>(i) + 1]; ++e)
-      acc.noalias() +=
-          val[static_cast<size_t>(e)] * x.segment<3>(3 * A.col[static_cast<size_t>(e)]);
-    out.segment<3>(3 * i) = acc;
+      if (A.col[static_cast<size_t>(e)] > i) {
+        U.col.push_back(A.col[static_cast<size_t>(e)]);
+        src.push_back(e);
+      }
+    U.start.push_back(static_cast<int>(U.col.size()));
   }
-}
-
-// One block Gauss-Seidel sweep on A x = b, over the rows in increasing (forward) or decreasing
-// order.
-void gauss_seidel(const Blocks& A, const std::vector<Block>& val, const std::vector<Block>& dinv,
-                  const Vector& b, Vector& x, bool forward) {
-  const int n = A.rows();
-  for (int k = 0; k < n; ++k) {
-    const int i = forward ? k : n - 1 - k;
-    Vec3 s = b.segment<3>(3 * i);
-    for (int e = A.start[static_cast<size_t>(i)]; e < A.start[static_cast<size_t>(i) + 1]; ++e)
-      if (e != A.diag[static_cast<size_t>(i)])
-        s.noalias() -=
-            val[static_cast<size_t>(e)] * x.segment<3>(3 * A.col[static_cast<size_t>(e)]);
-    x.segment<3>(3 * i) = dinv[static_cast<size_t>(i)] * s;
-  }
+  return U;
 }
 
 }  // namespace
@@ -265,12 +253,15 @@ MultigridHierarchy::MultigridHierarchy(const SparseMatrix<double>& pattern,
     coarse.A = std::move(next);
     m_levels.push_back(std::move(coarse));
   }
+  for (Level& level : m_levels) level.U = upper_of(level.A, level.u_src);
 }
 
 Multigrid::Multigrid(std::shared_ptr<const MultigridHierarchy> hierarchy)
     : m_h(std::move(hierarchy)) {
   const size_t L = m_h->levels().size();
   m_A.resize(L);
+  m_U.resize(L);
+  m_D.resize(L);
   m_Dinv.resize(L);
   m_b.resize(L);
   m_x.resize(L);
@@ -278,6 +269,8 @@ Multigrid::Multigrid(std::shared_ptr<const MultigridHierarchy> hierarchy)
   for (size_t l = 0; l < L; ++l) {
     const Blocks& A = m_h->levels()[l].A;
     m_A[l].resize(A.col.size());
+    m_U[l].resize(m_h->levels()[l].U.col.size());
+    m_D[l].resize(static_cast<size_t>(A.rows()));
     m_Dinv[l].resize(static_cast<size_t>(A.rows()));
     m_b[l].resize(3 * A.rows());
     m_x[l].resize(3 * A.rows());
@@ -285,21 +278,29 @@ Multigrid::Multigrid(std::shared_ptr<const MultigridHierarchy> hierarchy)
   }
 }
 
-bool Multigrid::setup(const SparseMatrix<double>& J) {
+bool Multigrid::setup(const SparseMatrix<double>& J, bool coarse) {
+  coarse = coarse || !m_coarse_ready;
+  m_coarse_ready = false;
   const auto& levels = m_h->levels();
   const double* val = J.valuePtr();
   const std::vector<int>& off = m_h->fine_offsets();
-  for (size_t e = 0; e < m_A[0].size(); ++e) {
-    Block& B = m_A[0][e];
+  // Level 0's block e of J (all of them only when the coarse levels are made from it).
+  auto fine = [&](int e) {
+    Block B;
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
-        B(r, c) = static_cast<Real>(val[off[3 * e + static_cast<size_t>(r)] + c]);
-  }
+        B(r, c) =
+            static_cast<Real>(val[off[3 * static_cast<size_t>(e) + static_cast<size_t>(r)] + c]);
+    return B;
+  };
+  if (coarse)
+    for (size_t e = 0; e < m_A[0].size(); ++e) m_A[0][e] = fine(static_cast<int>(e));
   for (size_t l = 0; l < levels.size(); ++l) {
     const Level& level = levels[l];
     const Blocks& A = level.A;
+    auto block = [&](int e) { return l == 0 ? fine(e) : m_A[l][static_cast<size_t>(e)]; };
     for (int i = 0; i < A.rows(); ++i) {
-      const Matrix3d D = m_A[l][static_cast<size_t>(A.diag[static_cast<size_t>(i)])].cast<double>();
+      const Matrix3d D = block(A.diag[static_cast<size_t>(i)]).cast<double>();
       // Positive definite by Sylvester's criterion (leading minors; no absolute threshold:
       // a light node's block at a short step is legitimately tiny), and a finite inverse.
       const double minor2 = D(0, 0) * D(1, 1) - D(0, 1) * D(1, 0);
@@ -307,8 +308,14 @@ bool Multigrid::setup(const SparseMatrix<double>& J) {
       const Matrix3d inv = D.inverse();
       if (!inv.allFinite()) return false;
       m_Dinv[l][static_cast<size_t>(i)] = inv.cast<Real>();
+      m_D[l][static_cast<size_t>(i)] = D.cast<Real>();
     }
+    for (size_t e = 0; e < level.u_src.size(); ++e) m_U[l][e] = block(level.u_src[e]);
     if (l + 1 == levels.size()) break;
+    if (!coarse) {
+      m_coarse_ready = true;
+      return true;
+    }
     m_T.assign(level.T.col.size(), Block::Zero());
     for (const auto& p : level.to_t)
       m_T[static_cast<size_t>(p.dst)].noalias() +=
@@ -327,9 +334,12 @@ bool Multigrid::setup(const SparseMatrix<double>& J) {
       dense.block<3, 3>(3 * i, 3 * C.col[static_cast<size_t>(e)]) =
           m_A.back()[static_cast<size_t>(e)].cast<double>();
   m_coarsest.compute(dense);
-  return m_coarsest.info() == Eigen::Success;
+  m_coarse_ready = m_coarsest.info() == Eigen::Success;
+  return m_coarse_ready;
 }
 
+// The smoother and the product read the symmetric A = L + D + U from U and D only: row i's
+// lower blocks are the transposes of the blocks (j, i) of U, used by scattering from row j.
 void Multigrid::cycle(size_t l) const {
   const auto& levels = m_h->levels();
   if (l + 1 == levels.size()) {
@@ -337,29 +347,77 @@ void Multigrid::cycle(size_t l) const {
     return;
   }
   const Level& level = levels[l];
+  const Blocks& U = level.U;
+  const std::vector<Block>& u = m_U[l];
+  const std::vector<Block>& dinv = m_Dinv[l];
+  const int n = U.rows();
   Vector& x = m_x[l];
-  Vector& r = m_r[l];
-  x.setZero();
-  gauss_seidel(level.A, m_A[l], m_Dinv[l], m_b[l], x, true);
-  multiply(level.A, m_A[l], x, r);
-  r = m_b[l] - r;
-  Vector& bc = m_b[l + 1];
-  for (int c = 0; c < level.coarse; ++c) {
-    Vec3 acc = Vec3::Zero();
-    for (int k = level.p_col_start[static_cast<size_t>(c)];
-         k < level.p_col_start[static_cast<size_t>(c) + 1]; ++k)
-      acc += static_cast<Real>(level.p_col_w[static_cast<size_t>(k)]) *
-             r.segment<3>(3 * level.p_col_row[static_cast<size_t>(k)]);
-    bc.segment<3>(3 * c) = acc;
+  Vector& s = m_r[l];
+  const Vector& b = m_b[l];
+  // Forward Gauss-Seidel from x = 0: s_i = b_i - sum_{j<i} A_ij x_j is complete when row i is
+  // reached, and row i's upper blocks then carry x_i to the later rows.
+  s = b;
+  for (int i = 0; i < n; ++i) {
+    const Vec3 xi = dinv[static_cast<size_t>(i)] * s.segment<3>(3 * i);
+    x.segment<3>(3 * i) = xi;
+    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
+      s.segment<3>(3 * U.col[static_cast<size_t>(e)]).noalias() -=
+          u[static_cast<size_t>(e)].transpose() * xi;
   }
-  cycle(l + 1);
-  const Vector& xc = m_x[l + 1];
-  for (int i = 0; i < level.A.rows(); ++i)
+  // Its residual b - A x is -U x (the sweep zeroed b - (L + D) x), restricted row by row.
+  Vector& bc = m_b[l + 1];
+  bc.setZero();
+  for (int i = 0; i < n; ++i) {
+    Vec3 ri = Vec3::Zero();
+    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
+      ri.noalias() -= u[static_cast<size_t>(e)] * x.segment<3>(3 * U.col[static_cast<size_t>(e)]);
     for (int k = level.p_row_start[static_cast<size_t>(i)];
          k < level.p_row_start[static_cast<size_t>(i) + 1]; ++k)
-      x.segment<3>(3 * i) += static_cast<Real>(level.p_row_w[static_cast<size_t>(k)]) *
-                             xc.segment<3>(3 * level.p_row_col[static_cast<size_t>(k)]);
-  gauss_seidel(level.A, m_A[l], m_Dinv[l], m_b[l], x, false);
+      bc.segment<3>(3 * level.p_row_col[static_cast<size_t>(k)]) +=
+          static_cast<Real>(level.p_row_w[static_cast<size_t>(k)]) * ri;
+  }
+  cycle(l + 1);
+  // Coarse correction, and s = b - L x for the backward sweep, in one pass.
+  const Vector& xc = m_x[l + 1];
+  s = b;
+  for (int i = 0; i < n; ++i) {
+    Vec3 xi = x.segment<3>(3 * i);
+    for (int k = level.p_row_start[static_cast<size_t>(i)];
+         k < level.p_row_start[static_cast<size_t>(i) + 1]; ++k)
+      xi += static_cast<Real>(level.p_row_w[static_cast<size_t>(k)]) *
+            xc.segment<3>(3 * level.p_row_col[static_cast<size_t>(k)]);
+    x.segment<3>(3 * i) = xi;
+    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
+      s.segment<3>(3 * U.col[static_cast<size_t>(e)]).noalias() -=
+          u[static_cast<size_t>(e)].transpose() * xi;
+  }
+  // Backward Gauss-Seidel: x_i = D_i^-1 (b_i - (L x)_i - sum_{j>i} A_ij x_j).
+  for (int i = n - 1; i >= 0; --i) {
+    Vec3 si = s.segment<3>(3 * i);
+    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
+      si.noalias() -= u[static_cast<size_t>(e)] * x.segment<3>(3 * U.col[static_cast<size_t>(e)]);
+    x.segment<3>(3 * i) = dinv[static_cast<size_t>(i)] * si;
+  }
+}
+
+void Multigrid::multiply(const VectorXd& x, VectorXd& y) const {
+  const Blocks& U = m_h->levels()[0].U;
+  const std::vector<Block>& u = m_U[0];
+  const std::vector<Block>& d = m_D[0];
+  y.resize(x.size());
+  for (int i = 0; i < U.rows(); ++i)
+    y.segment<3>(3 * i).noalias() = d[static_cast<size_t>(i)] * x.segment<3>(3 * i);
+  for (int i = 0; i < U.rows(); ++i) {
+    const Vector3d xi = x.segment<3>(3 * i);
+    Vector3d yi = y.segment<3>(3 * i);
+    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e) {
+      const int j = U.col[static_cast<size_t>(e)];
+      const Block& B = u[static_cast<size_t>(e)];
+      yi.noalias() += B * x.segment<3>(3 * j);
+      y.segment<3>(3 * j).noalias() += B.transpose() * xi;
+    }
+    y.segment<3>(3 * i) = yi;
+  }
 }
 
 void Multigrid::apply(const VectorXd& r, VectorXd& z) const {

@@ -54,6 +54,11 @@ class MultigridHierarchy {
     // T[dst] += w A[src], then A_next[dst] += w T[src].
     Blocks T;
     std::vector<PlanEntry> to_t, to_next;
+    // The strict upper triangle of A by rows (U.diag unused) and, per entry, its block in A:
+    // the smoother and the product read only these and the diagonal blocks (A is symmetric),
+    // half of A's memory traffic.
+    Blocks U;
+    std::vector<int> u_src;
   };
   const std::vector<Level>& levels() const { return m_levels; }
   /// Level 0's blocks in the pattern: entry (r, c) of block e is valuePtr()[fine_offsets()[3 e +
@@ -81,7 +86,9 @@ class SharedMultigridHierarchy {
 
 /// The numeric part: the Galerkin matrices of one J and their smoothers. (Single precision
 /// would halve the matrix traffic that bounds a V-cycle's speed, but at 16k cloth vertices it
-/// made Newton take 84 iterations per step instead of 50: CG on the exact Hessian broke down.)
+/// made Newton take 84 iterations per step instead of 50: CG on the exact Hessian broke down.
+/// Single-precision storage with double arithmetic kept the iterations but was slower: the
+/// conversions cost more than the traffic saved.)
 class Multigrid {
  public:
   using Real = double;
@@ -94,19 +101,28 @@ class Multigrid {
 
   /// Sets up for J (the hierarchy's pattern). Returns false if a diagonal block or the
   /// coarsest matrix is not positive definite (J is then not either; apply() must not be
-  /// called).
-  bool setup(const Eigen::SparseMatrix<double>& J);
+  /// called). With coarse = false, only the finest level (the smoother and multiply()) takes
+  /// J and the coarser levels keep the Galerkin matrices of the last full setup (which must
+  /// have succeeded, else this is a full setup): the V-cycle stays symmetric positive definite
+  /// for a positive definite J and is a good preconditioner for a J close to the last one
+  /// (the next Newton iterations of a substep), at a third of the cost.
+  bool setup(const Eigen::SparseMatrix<double>& J, bool coarse = true);
   /// z = one V-cycle on J z = r from z = 0: forward block Gauss-Seidel before, backward after
   /// each coarse correction, so a symmetric positive definite operator when J is.
   void apply(const Eigen::VectorXd& r, Eigen::VectorXd& z) const;
+  /// y = J x for the J of the last setup() (its free-free blocks, read from the upper triangle).
+  void multiply(const Eigen::VectorXd& x, Eigen::VectorXd& y) const;
 
  private:
   void cycle(size_t level) const;
 
   std::shared_ptr<const MultigridHierarchy> m_h;
-  std::vector<std::vector<Block>> m_A, m_Dinv;  // per level
+  // Per level: all blocks (for the Galerkin products), the strict upper triangle's blocks, the
+  // diagonal blocks and their inverses.
+  std::vector<std::vector<Block>> m_A, m_U, m_D, m_Dinv;
   std::vector<Block> m_T;
   Eigen::LLT<Eigen::MatrixXd> m_coarsest;
+  bool m_coarse_ready = false;                // the last full setup succeeded
   mutable std::vector<Vector> m_b, m_x, m_r;  // per level: right side, iterate, residual
 };
 
