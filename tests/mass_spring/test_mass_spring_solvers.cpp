@@ -13,6 +13,7 @@
 #include <Eigen/Geometry>
 
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include "../../adapters/mass_spring/src/cholesky.hpp"
 #include "../../adapters/mass_spring/src/factor.hpp"
@@ -78,6 +79,11 @@ SparseMatrix<double> sheet_matrix(int n, double stretch, VectorXd& positions) {
   A.setFromTriplets(t.begin(), t.end());
   A.makeCompressed();
   return A;
+}
+
+bool bit_equal_vectors(const VectorXd& a, const VectorXd& b) {
+  return a.size() == b.size() &&
+         std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.size())) == 0;
 }
 
 VectorXd random_vector(Eigen::Index n, unsigned seed) {
@@ -202,15 +208,21 @@ TEST(MassSpringSolvers, MultigridProductAndFinestLevelUpdate) {
   // The V-cycle and the product read the upper triangle only: J x must match the full
   // matrix's product to rounding. A setup that takes a new finest matrix and keeps the coarse
   // levels of an earlier one (the next Newton iterations of a substep) must give J's product,
-  // a symmetric positive definite V-cycle, and CG iterations close to a full setup's.
+  // a symmetric positive definite V-cycle, and CG iterations close to a full setup's. The
+  // 64 x 64 sheet is large enough for the finest level to be split into two parts and a
+  // separator, smoothed by two threads: results must not depend on how many threads run.
   using pbve::mass_spring::detail::Multigrid;
   using pbve::mass_spring::detail::MultigridHierarchy;
   VectorXd x0;
-  const SparseMatrix<double> A1 = sheet_matrix(48, 0.02, x0);
-  const SparseMatrix<double> A2 = sheet_matrix(48, 0.05, x0);
+  const SparseMatrix<double> A1 = sheet_matrix(64, 0.02, x0);
+  const SparseMatrix<double> A2 = sheet_matrix(64, 0.05, x0);
   ASSERT_GT((A1 - A2).norm(), 1e-3 * A1.norm());
-  auto hierarchy = std::make_shared<const MultigridHierarchy>(A1, sheet_strength(48));
+  auto hierarchy = std::make_shared<const MultigridHierarchy>(A1, sheet_strength(64));
   ASSERT_GE(hierarchy->levels().size(), 3u);
+  const auto& fine = hierarchy->levels()[0];
+  ASSERT_GT(fine.part[0], 0);                       // two parts
+  ASSERT_LT(fine.part[1], fine.A.rows());           // and a separator
+  EXPECT_LE(fine.A.rows() - fine.part[1], 3 * 64);  // a few grid lines (bending springs)
   Multigrid full(hierarchy), kept(hierarchy);
   ASSERT_TRUE(full.setup(A2));
   ASSERT_TRUE(kept.setup(A2, false));  // no earlier full setup: a full one
@@ -238,6 +250,15 @@ TEST(MassSpringSolvers, MultigridProductAndFinestLevelUpdate) {
   ASSERT_GT(with_kept, 0);
   EXPECT_LT((A2 * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
   EXPECT_LE(with_kept, 1.5 * with_full) << with_full << " " << with_kept;
+  // One thread gives the same bits as two.
+  VectorXd Mu1, Ju1;
+  tbb::task_arena one(1);
+  one.execute([&] {
+    kept.apply(u, Mu1);
+    kept.multiply(u, Ju1);
+  });
+  EXPECT_TRUE(bit_equal_vectors(Mu, Mu1));
+  EXPECT_TRUE(bit_equal_vectors(Ju, Ju1));
   // The finest level still refuses an indefinite matrix.
   SparseMatrix<double> I(A2.rows(), A2.cols());
   I.setIdentity();

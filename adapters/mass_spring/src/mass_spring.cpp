@@ -205,9 +205,12 @@ struct MassSpringSimulator::Impl {
   // that needs more than this has met an indefinite or ill-posed matrix.
   static constexpr int max_multigrid_iterations = 200;
   int last_reuse_iterations = 0;
-  int solves_in_call = 0;         // linear_solve() calls since begin_call()
-  std::vector<Matrix3d> precond;  // inverse diagonal blocks (iterative solver)
-  detail::Multigrid multigrid;    // LinearSolver::multigrid: set up per solve
+  int solves_in_call = 0;               // linear_solve() calls since begin_call()
+  std::vector<Matrix3d> precond;        // inverse diagonal blocks (iterative solver)
+  detail::Multigrid multigrid;          // LinearSolver::multigrid: set up per solve
+  std::vector<Matrix3d> spring_blocks;  // assemble(): per spring
+  // assemble() computes the spring blocks of at least this many springs in parallel.
+  static constexpr size_t parallel_springs = 20000;
   // The next multigrid setup recomputes the coarse levels (set at each substep's start, so
   // that a step's result depends only on its start and input; later solves of the substep
   // keep the coarse levels and take only the new finest matrix).
@@ -401,13 +404,27 @@ struct MassSpringSimulator::Impl {
     };
     for (size_t f = 0; f < m.free_nodes.size(); ++f)
       add(m.diag_offset[f], node_block(m.free_nodes[f], y, lag, h), 1.0);
+    // The spring blocks (in parallel on large models), then their sums in spring order.
+    spring_blocks.resize(m.springs.size());
+    auto compute = [&](size_t s) {
+      const Spring& sp = m.springs[s];
+      spring_blocks[s] = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
+                                      lag.dir[s], h, P().damping_beta, exact);
+    };
+    if (m.springs.size() < parallel_springs) {
+      for (size_t s = 0; s < m.springs.size(); ++s) compute(s);
+    } else {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.springs.size(), 4096),
+                        [&](const tbb::blocked_range<size_t>& r) {
+                          for (size_t s = r.begin(); s != r.end(); ++s) compute(s);
+                        });
+    }
     for (size_t s = 0; s < m.springs.size(); ++s) {
       const Spring& sp = m.springs[s];
       const int fa = m.free_index[static_cast<size_t>(sp.a)];
       const int fb = m.free_index[static_cast<size_t>(sp.b)];
       if (fa < 0 && fb < 0) continue;
-      const Matrix3d B = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
-                                      lag.dir[s], h, P().damping_beta, exact);
+      const Matrix3d& B = spring_blocks[s];
       if (fa >= 0) add(m.diag_offset[static_cast<size_t>(fa)], B, 1.0);
       if (fb >= 0) add(m.diag_offset[static_cast<size_t>(fb)], B, 1.0);
       if (fa >= 0 && fb >= 0) {

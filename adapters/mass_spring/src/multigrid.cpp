@@ -1,10 +1,15 @@
 #include "multigrid.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <stdexcept>
 
 #include <Eigen/LU>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 namespace pbve::mass_spring::detail {
 
@@ -191,20 +196,89 @@ Blocks build_plans(Level& level) {
   return next;
 }
 
-// The strict upper triangle of A by rows; src[e] is entry e's block in A.
-Blocks upper_of(const Blocks& A, std::vector<int>& src) {
-  Blocks U;
+// A finest level of at least this many nodes is smoothed by two threads.
+constexpr int parallel_nodes = 2048;
+
+// Whether threads run `level` (a split level).
+bool threaded(const Level& level) {
+  return level.part[0] > 0 && level.part[1] < level.U.rows();
+}
+
+// f(k) for k in [0, n), in parallel on a split level.
+template <class F>
+void for_rows(const Level& level, int n, F f) {
+  if (!threaded(level)) {
+    for (int k = 0; k < n; ++k) f(k);
+    return;
+  }
+  tbb::parallel_for(tbb::blocked_range<int>(0, n, 2048), [&](const tbb::blocked_range<int>& r) {
+    for (int k = r.begin(); k != r.end(); ++k) f(k);
+  });
+}
+
+// The V-cycle order of `level` (see Level::order) and everything kept in that order.
+void order_level(Level& level, bool split) {
+  const Blocks& A = level.A;
+  const int n = A.rows();
+  level.order.clear();
+  level.part[0] = level.part[1] = n;
+  if (split && level.coarse > 0 && n >= parallel_nodes) {
+    // The halves of the node numbering (meshes number their nodes with some locality), and
+    // the first half's nodes coupled to the second as the separator.
+    const int half = n / 2;
+    std::vector<int> separator, first;
+    for (int i = 0; i < half; ++i) {
+      bool coupled = false;
+      for (int e = A.start[static_cast<size_t>(i)]; e < A.start[static_cast<size_t>(i) + 1]; ++e)
+        coupled = coupled || A.col[static_cast<size_t>(e)] >= half;
+      (coupled ? separator : first).push_back(i);
+    }
+    // Threads pay only with a thin separator (a few grid lines): else one part.
+    if (separator.size() <= static_cast<size_t>(n / 8)) {
+      level.order = first;
+      for (int i = half; i < n; ++i) level.order.push_back(i);
+      level.order.insert(level.order.end(), separator.begin(), separator.end());
+      level.part[0] = static_cast<int>(first.size());
+      level.part[1] = level.part[0] + (n - half);
+    }
+  }
+  if (level.order.empty())
+    for (int i = 0; i < n; ++i) level.order.push_back(i);
+  std::vector<int> rank(static_cast<size_t>(n));
+  for (int k = 0; k < n; ++k) rank[static_cast<size_t>(level.order[static_cast<size_t>(k)])] = k;
+  Blocks& U = level.U;
   U.start.assign(1, 0);
-  src.clear();
-  for (int i = 0; i < A.rows(); ++i) {
-    for (int e = A.start[static_cast<size_t>(i)]; e < A.start[static_cast<size_t>(i) + 1]; ++e)
-      if (A.col[static_cast<size_t>(e)] > i) {
-        U.col.push_back(A.col[static_cast<size_t>(e)]);
-        src.push_back(e);
-      }
+  U.col.clear();
+  level.u_src.clear();
+  level.d_src.clear();
+  for (int k = 0; k < n; ++k) {
+    const int i = level.order[static_cast<size_t>(k)];
+    level.d_src.push_back(A.diag[static_cast<size_t>(i)]);
+    for (int e = A.start[static_cast<size_t>(i)]; e < A.start[static_cast<size_t>(i) + 1]; ++e) {
+      const int c = rank[static_cast<size_t>(A.col[static_cast<size_t>(e)])];
+      if (c <= k) continue;
+      // A part's rows couple only to their own part and the separator.
+      if (k < level.part[0] && c >= level.part[0] && c < level.part[1])
+        throw std::logic_error("multigrid: the separator does not separate");
+      U.col.push_back(c);
+      level.u_src.push_back(e);
+    }
     U.start.push_back(static_cast<int>(U.col.size()));
   }
-  return U;
+  level.c_row_start.assign(1, 0);
+  level.c_row_col.clear();
+  level.c_row_w.clear();
+  if (level.coarse == 0) return;
+  for (int k = 0; k < n; ++k) {
+    const auto i = static_cast<size_t>(level.order[static_cast<size_t>(k)]);
+    for (int q = level.p_row_start[i]; q < level.p_row_start[i + 1]; ++q) {
+      level.c_row_col.push_back(level.p_row_col[static_cast<size_t>(q)]);
+      level.c_row_w.push_back(level.p_row_w[static_cast<size_t>(q)]);
+    }
+    level.c_row_start.push_back(static_cast<int>(level.c_row_col.size()));
+  }
+  level.c_col_row.clear();
+  for (int r : level.p_col_row) level.c_col_row.push_back(rank[static_cast<size_t>(r)]);
 }
 
 }  // namespace
@@ -253,7 +327,7 @@ MultigridHierarchy::MultigridHierarchy(const SparseMatrix<double>& pattern,
     coarse.A = std::move(next);
     m_levels.push_back(std::move(coarse));
   }
-  for (Level& level : m_levels) level.U = upper_of(level.A, level.u_src);
+  for (size_t l = 0; l < m_levels.size(); ++l) order_level(m_levels[l], l == 0);
 }
 
 Multigrid::Multigrid(std::shared_ptr<const MultigridHierarchy> hierarchy)
@@ -294,23 +368,27 @@ bool Multigrid::setup(const SparseMatrix<double>& J, bool coarse) {
     return B;
   };
   if (coarse)
-    for (size_t e = 0; e < m_A[0].size(); ++e) m_A[0][e] = fine(static_cast<int>(e));
+    for_rows(levels[0], static_cast<int>(m_A[0].size()),
+             [&](int e) { m_A[0][static_cast<size_t>(e)] = fine(e); });
   for (size_t l = 0; l < levels.size(); ++l) {
     const Level& level = levels[l];
-    const Blocks& A = level.A;
+    const Blocks& U = level.U;
     auto block = [&](int e) { return l == 0 ? fine(e) : m_A[l][static_cast<size_t>(e)]; };
-    for (int i = 0; i < A.rows(); ++i) {
-      const Matrix3d D = block(A.diag[static_cast<size_t>(i)]).cast<double>();
+    std::atomic<bool> definite{true};
+    for_rows(level, U.rows(), [&](int k) {
+      const Matrix3d D = block(level.d_src[static_cast<size_t>(k)]).cast<double>();
       // Positive definite by Sylvester's criterion (leading minors; no absolute threshold:
       // a light node's block at a short step is legitimately tiny), and a finite inverse.
       const double minor2 = D(0, 0) * D(1, 1) - D(0, 1) * D(1, 0);
-      if (!(D(0, 0) > 0.0) || !(minor2 > 0.0) || !(D.determinant() > 0.0)) return false;
       const Matrix3d inv = D.inverse();
-      if (!inv.allFinite()) return false;
-      m_Dinv[l][static_cast<size_t>(i)] = inv.cast<Real>();
-      m_D[l][static_cast<size_t>(i)] = D.cast<Real>();
-    }
-    for (size_t e = 0; e < level.u_src.size(); ++e) m_U[l][e] = block(level.u_src[e]);
+      if (!(D(0, 0) > 0.0) || !(minor2 > 0.0) || !(D.determinant() > 0.0) || !inv.allFinite())
+        definite = false;
+      m_Dinv[l][static_cast<size_t>(k)] = inv.cast<Real>();
+      m_D[l][static_cast<size_t>(k)] = D.cast<Real>();
+      for (int e = U.start[static_cast<size_t>(k)]; e < U.start[static_cast<size_t>(k) + 1]; ++e)
+        m_U[l][static_cast<size_t>(e)] = block(level.u_src[static_cast<size_t>(e)]);
+    });
+    if (!definite) return false;
     if (l + 1 == levels.size()) break;
     if (!coarse) {
       m_coarse_ready = true;
@@ -340,6 +418,92 @@ bool Multigrid::setup(const SparseMatrix<double>& J, bool coarse) {
 
 // The smoother and the product read the symmetric A = L + D + U from U and D only: row i's
 // lower blocks are the transposes of the blocks (j, i) of U, used by scattering from row j.
+// With two parts (Level::order), each part scatters into its own rows and, for the separator's
+// rows, into its own buffer: the parts run in parallel, and the result is that of the serial
+// sweep in the same order.
+namespace {
+
+struct Sweeps {
+  const Level& level;
+  const std::vector<Block>& u;
+  const std::vector<Block>& dinv;
+  bool parallel() const { return threaded(level); }
+  // f(begin, end) over the two parts, in parallel when the level is split.
+  template <class F>
+  void parts(F f) const {
+    if (parallel())
+      tbb::parallel_invoke([&] { f(0, level.part[0]); }, [&] { f(level.part[0], level.part[1]); });
+    else
+      f(0, level.part[1]);
+  }
+  // f(k) for every position, in parallel when the level is split.
+  template <class F>
+  void rows(F f) const {
+    for_rows(level, level.U.rows(), f);
+  }
+  // s = b - L x in the scatter form (b = 0 when null); with `solve`, x is the forward
+  // Gauss-Seidel sweep from x = 0 (x_k = D_k^-1 s_k as each s_k is complete) instead of an
+  // input.
+  void lower(const Vector* b, Vector& x, Vector& s, Vector* sep, bool solve) const {
+    const Blocks& U = level.U;
+    const int n = U.rows(), s0 = level.part[1];
+    const Eigen::Index ns = 3 * static_cast<Eigen::Index>(n - s0);
+    auto run = [&](int begin, int end, Vector& buf) {
+      if (b)
+        s.segment(3 * begin, 3 * (end - begin)) = b->segment(3 * begin, 3 * (end - begin));
+      else
+        s.segment(3 * begin, 3 * (end - begin)).setZero();
+      buf.setZero(ns);
+      for (int k = begin; k < end; ++k) {
+        if (solve) x.segment<3>(3 * k) = dinv[static_cast<size_t>(k)] * s.segment<3>(3 * k);
+        const Vec3 xk = x.segment<3>(3 * k);
+        for (int e = U.start[static_cast<size_t>(k)]; e < U.start[static_cast<size_t>(k) + 1];
+             ++e) {
+          const int c = U.col[static_cast<size_t>(e)];
+          if (c < s0)
+            s.segment<3>(3 * c).noalias() -= u[static_cast<size_t>(e)].transpose() * xk;
+          else
+            buf.segment<3>(3 * (c - s0)).noalias() += u[static_cast<size_t>(e)].transpose() * xk;
+        }
+      }
+    };
+    parts([&](int begin, int end) { run(begin, end, sep[begin == 0 ? 0 : 1]); });
+    if (s0 == n) return;
+    if (b)
+      s.tail(ns) = b->tail(ns) - sep[0];
+    else
+      s.tail(ns) = -sep[0];
+    if (parallel()) s.tail(ns) -= sep[1];
+    for (int k = s0; k < n; ++k) {
+      if (solve) x.segment<3>(3 * k) = dinv[static_cast<size_t>(k)] * s.segment<3>(3 * k);
+      const Vec3 xk = x.segment<3>(3 * k);
+      for (int e = U.start[static_cast<size_t>(k)]; e < U.start[static_cast<size_t>(k) + 1]; ++e)
+        s.segment<3>(3 * U.col[static_cast<size_t>(e)]).noalias() -=
+            u[static_cast<size_t>(e)].transpose() * xk;
+    }
+  }
+  // (U x)_k.
+  Vec3 upper(const Vector& x, int k) const {
+    const Blocks& U = level.U;
+    Vec3 acc = Vec3::Zero();
+    for (int e = U.start[static_cast<size_t>(k)]; e < U.start[static_cast<size_t>(k) + 1]; ++e)
+      acc.noalias() += u[static_cast<size_t>(e)] * x.segment<3>(3 * U.col[static_cast<size_t>(e)]);
+    return acc;
+  }
+  // Backward Gauss-Seidel from s = b - L x: the separator first, then the parts.
+  void backward(const Vector& s, Vector& x) const {
+    const int n = level.U.rows();
+    auto run = [&](int begin, int end) {
+      for (int k = end - 1; k >= begin; --k)
+        x.segment<3>(3 * k) = dinv[static_cast<size_t>(k)] * (s.segment<3>(3 * k) - upper(x, k));
+    };
+    run(level.part[1], n);
+    parts(run);
+  }
+};
+
+}  // namespace
+
 void Multigrid::cycle(size_t l) const {
   const auto& levels = m_h->levels();
   if (l + 1 == levels.size()) {
@@ -347,83 +511,66 @@ void Multigrid::cycle(size_t l) const {
     return;
   }
   const Level& level = levels[l];
-  const Blocks& U = level.U;
-  const std::vector<Block>& u = m_U[l];
-  const std::vector<Block>& dinv = m_Dinv[l];
-  const int n = U.rows();
+  const Sweeps sw{level, m_U[l], m_Dinv[l]};
   Vector& x = m_x[l];
   Vector& s = m_r[l];
   const Vector& b = m_b[l];
-  // Forward Gauss-Seidel from x = 0: s_i = b_i - sum_{j<i} A_ij x_j is complete when row i is
-  // reached, and row i's upper blocks then carry x_i to the later rows.
-  s = b;
-  for (int i = 0; i < n; ++i) {
-    const Vec3 xi = dinv[static_cast<size_t>(i)] * s.segment<3>(3 * i);
-    x.segment<3>(3 * i) = xi;
-    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
-      s.segment<3>(3 * U.col[static_cast<size_t>(e)]).noalias() -=
-          u[static_cast<size_t>(e)].transpose() * xi;
-  }
-  // Its residual b - A x is -U x (the sweep zeroed b - (L + D) x), restricted row by row.
+  // Forward Gauss-Seidel from x = 0. Its residual b - A x is -U x (the sweep zeroed
+  // b - (L + D) x), restricted by the columns of P.
+  sw.lower(&b, x, s, m_sep, true);
+  sw.rows([&](int k) { s.segment<3>(3 * k) = -sw.upper(x, k); });
   Vector& bc = m_b[l + 1];
-  bc.setZero();
-  for (int i = 0; i < n; ++i) {
-    Vec3 ri = Vec3::Zero();
-    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
-      ri.noalias() -= u[static_cast<size_t>(e)] * x.segment<3>(3 * U.col[static_cast<size_t>(e)]);
-    for (int k = level.p_row_start[static_cast<size_t>(i)];
-         k < level.p_row_start[static_cast<size_t>(i) + 1]; ++k)
-      bc.segment<3>(3 * level.p_row_col[static_cast<size_t>(k)]) +=
-          static_cast<Real>(level.p_row_w[static_cast<size_t>(k)]) * ri;
+  for (int c = 0; c < level.coarse; ++c) {
+    Vec3 acc = Vec3::Zero();
+    for (int q = level.p_col_start[static_cast<size_t>(c)];
+         q < level.p_col_start[static_cast<size_t>(c) + 1]; ++q)
+      acc += static_cast<Real>(level.p_col_w[static_cast<size_t>(q)]) *
+             s.segment<3>(3 * level.c_col_row[static_cast<size_t>(q)]);
+    bc.segment<3>(3 * c) = acc;
   }
   cycle(l + 1);
-  // Coarse correction, and s = b - L x for the backward sweep, in one pass.
+  // Coarse correction, then s = b - L x and the backward sweep.
   const Vector& xc = m_x[l + 1];
-  s = b;
-  for (int i = 0; i < n; ++i) {
-    Vec3 xi = x.segment<3>(3 * i);
-    for (int k = level.p_row_start[static_cast<size_t>(i)];
-         k < level.p_row_start[static_cast<size_t>(i) + 1]; ++k)
-      xi += static_cast<Real>(level.p_row_w[static_cast<size_t>(k)]) *
-            xc.segment<3>(3 * level.p_row_col[static_cast<size_t>(k)]);
-    x.segment<3>(3 * i) = xi;
-    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
-      s.segment<3>(3 * U.col[static_cast<size_t>(e)]).noalias() -=
-          u[static_cast<size_t>(e)].transpose() * xi;
-  }
-  // Backward Gauss-Seidel: x_i = D_i^-1 (b_i - (L x)_i - sum_{j>i} A_ij x_j).
-  for (int i = n - 1; i >= 0; --i) {
-    Vec3 si = s.segment<3>(3 * i);
-    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e)
-      si.noalias() -= u[static_cast<size_t>(e)] * x.segment<3>(3 * U.col[static_cast<size_t>(e)]);
-    x.segment<3>(3 * i) = dinv[static_cast<size_t>(i)] * si;
-  }
+  sw.rows([&](int k) {
+    Vec3 xk = x.segment<3>(3 * k);
+    for (int q = level.c_row_start[static_cast<size_t>(k)];
+         q < level.c_row_start[static_cast<size_t>(k) + 1]; ++q)
+      xk += static_cast<Real>(level.c_row_w[static_cast<size_t>(q)]) *
+            xc.segment<3>(3 * level.c_row_col[static_cast<size_t>(q)]);
+    x.segment<3>(3 * k) = xk;
+  });
+  sw.lower(&b, x, s, m_sep, false);
+  sw.backward(s, x);
 }
 
 void Multigrid::multiply(const VectorXd& x, VectorXd& y) const {
-  const Blocks& U = m_h->levels()[0].U;
-  const std::vector<Block>& u = m_U[0];
+  // y = (D + U) x + L x: L x as in the smoother's lower sweep, (D + U) x row by row.
+  const Level& level = m_h->levels()[0];
+  const Sweeps sw{level, m_U[0], m_Dinv[0]};
   const std::vector<Block>& d = m_D[0];
+  const int n = level.U.rows();
+  m_in.resize(x.size());
+  for (int k = 0; k < n; ++k)
+    m_in.segment<3>(3 * k) = x.segment<3>(3 * level.order[static_cast<size_t>(k)]);
+  m_out.resize(x.size());
+  sw.lower(nullptr, m_in, m_out, m_sep, false);  // m_out = -L x
   y.resize(x.size());
-  for (int i = 0; i < U.rows(); ++i)
-    y.segment<3>(3 * i).noalias() = d[static_cast<size_t>(i)] * x.segment<3>(3 * i);
-  for (int i = 0; i < U.rows(); ++i) {
-    const Vector3d xi = x.segment<3>(3 * i);
-    Vector3d yi = y.segment<3>(3 * i);
-    for (int e = U.start[static_cast<size_t>(i)]; e < U.start[static_cast<size_t>(i) + 1]; ++e) {
-      const int j = U.col[static_cast<size_t>(e)];
-      const Block& B = u[static_cast<size_t>(e)];
-      yi.noalias() += B * x.segment<3>(3 * j);
-      y.segment<3>(3 * j).noalias() += B.transpose() * xi;
-    }
-    y.segment<3>(3 * i) = yi;
-  }
+  sw.rows([&](int k) {
+    y.segment<3>(3 * level.order[static_cast<size_t>(k)]) =
+        d[static_cast<size_t>(k)] * m_in.segment<3>(3 * k) + sw.upper(m_in, k) -
+        m_out.segment<3>(3 * k);
+  });
 }
 
 void Multigrid::apply(const VectorXd& r, VectorXd& z) const {
-  m_b[0] = r.cast<Real>();
+  const std::vector<int>& order = m_h->levels()[0].order;
+  const auto n = static_cast<Eigen::Index>(order.size());
+  for (Eigen::Index k = 0; k < n; ++k)
+    m_b[0].segment<3>(3 * k) = r.segment<3>(3 * order[static_cast<size_t>(k)]);
   cycle(0);
-  z = m_x[0].cast<double>();
+  z.resize(r.size());
+  for (Eigen::Index k = 0; k < n; ++k)
+    z.segment<3>(3 * order[static_cast<size_t>(k)]) = m_x[0].segment<3>(3 * k);
 }
 
 }  // namespace pbve::mass_spring::detail

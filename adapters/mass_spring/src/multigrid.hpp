@@ -54,11 +54,21 @@ class MultigridHierarchy {
     // T[dst] += w A[src], then A_next[dst] += w T[src].
     Blocks T;
     std::vector<PlanEntry> to_t, to_next;
-    // The strict upper triangle of A by rows (U.diag unused) and, per entry, its block in A:
-    // the smoother and the product read only these and the diagonal blocks (A is symmetric),
-    // half of A's memory traffic.
+    // The V-cycle's order of the level's nodes: position k is node order[k]. On a large finest
+    // level, two parts with no coupling between them, then their separator: positions
+    // [0, part[0]) and [part[0], part[1]) are smoothed in parallel, [part[1], n) after them
+    // (before them backwards); elsewhere the natural order, one part (part[0] = part[1] = n).
+    // The smoother is Gauss-Seidel in that order whether or not threads run it.
+    std::vector<int> order;
+    int part[2] = {0, 0};
+    // In that order: the strict upper triangle of A by rows (U.diag unused) and, per entry and
+    // per diagonal block, its block in A; the smoother and the product read only these (A is
+    // symmetric), half of A's memory traffic.
     Blocks U;
-    std::vector<int> u_src;
+    std::vector<int> u_src, d_src;
+    // The prolongator in that order: by rows (positions) and, by columns, the positions.
+    std::vector<int> c_row_start, c_row_col, c_col_row;
+    std::vector<double> c_row_w;
   };
   const std::vector<Level>& levels() const { return m_levels; }
   /// Level 0's blocks in the pattern: entry (r, c) of block e is valuePtr()[fine_offsets()[3 e +
@@ -124,6 +134,8 @@ class Multigrid {
   Eigen::LLT<Eigen::MatrixXd> m_coarsest;
   bool m_coarse_ready = false;                // the last full setup succeeded
   mutable std::vector<Vector> m_b, m_x, m_r;  // per level: right side, iterate, residual
+  mutable Vector m_sep[2];     // finest level: each part's contributions to the separator rows
+  mutable Vector m_in, m_out;  // multiply(): x and y in the finest level's order
 };
 
 }  // namespace pbve::mass_spring::detail
