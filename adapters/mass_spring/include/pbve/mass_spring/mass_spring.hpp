@@ -52,11 +52,13 @@ enum class LinearSolver {
   iterative,
   /// conjugate gradients preconditioned by one smoothed-aggregation multigrid V-cycle (the
   /// aggregates and prolongators built once per model from the springs, the coarse matrices
-  /// formed per Newton matrix): setup and iterations cost time linear in the number of nodes.
-  /// Indefinite adjoint systems (exact Hessian of compressed springs) run MINRES preconditioned
-  /// by the multigrid of the projected Hessian. Measured (docs/benchmarks.md, mass_spring):
-  /// a cloth step 2.1x faster than `direct` at 1k vertices, 2.9x at 4k, 1.7x at 16k; slower
-  /// (1.5-1.8x) on example 1's thin board, whose two layers are tied (layer_stiffness > 0)
+  /// formed once per substep): setup and iterations cost time linear in the number of nodes,
+  /// and a finest level of 2048 nodes or more is smoothed by two threads (same results with
+  /// any number). Indefinite adjoint systems (exact Hessian of compressed springs) run MINRES
+  /// preconditioned by the multigrid of the projected Hessian. Measured (docs/benchmarks.md,
+  /// mass_spring): a cloth step 2.3x faster than `direct` at 1k vertices, 6.2x at 4k, 6.4x at
+  /// 16k; about as fast on example 1's thin board, whose two layers are tied
+  /// (layer_stiffness > 0)
   multigrid,
 };
 
@@ -153,8 +155,8 @@ struct Params {
   /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node)
   /// and the multigrid solver above; 0 means multigrid always. The direct solver's cost grows
   /// about as n^1.5 (docs/benchmarks.md, mass_spring), the multigrid solver's about linearly
-  /// but it is slower on example 1's tied two-layer board; on a plain cloth multigrid is the
-  /// faster from about 1k vertices (set 0 there).
+  /// (it is about as fast on example 1's tied two-layer board); on a plain cloth multigrid is
+  /// the faster from a few hundred vertices (set 0 there).
   int direct_solver_max_dofs = 60000;
   /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0):
   /// there block-Jacobi CG needs thousands of iterations per solve, and factorizing is 5-7x
