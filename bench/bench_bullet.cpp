@@ -62,8 +62,10 @@ void BM_BulletFrames(benchmark::State& state) {
   ControlOptions o;
   o.solver = pbve::ControlSolver::lbfgs;
   o.max_evaluations = std::max(1, static_cast<int>(state.range(1)));
-  o.gradient = GradientMode::central;
-  o.clusters = mode == 2 ? 16 : 0;
+  o.gradient = mode == 3 || mode == 5 ? GradientMode::compressed : GradientMode::central;
+  o.clusters = mode == 2 || mode == 4 ? 16 : 0;
+  o.linearized = mode >= 3;
+  if (mode == 5) o.difference_rings = static_cast<int>(state.range(2));
   pbve::bench::run_control_frames(state, scene, *sim0, kFirst, inputs, o, mode != 0);
 }
 
@@ -77,15 +79,49 @@ void BM_BulletGradient(benchmark::State& state) {
   state.counters["variables"] = 3.0 * scene.num_vertices();
 }
 
+// The gradient over the active set of frame kFirst, compressed with `rings` rings, against plain
+// central differences (computed once, outside the timing): relative error |g_c - g| / |g| of the
+// visibility part, and ms per compressed gradient.
+void BM_BulletCompressedGradient(benchmark::State& state) {
+  const int rings = static_cast<int>(state.range(0));
+  const pbve::test::ClothScene scene = make_scene();
+  const auto sim = start(scene);
+  const std::vector<ControlFrameInput> window{scene.control_input(kFirst)};
+  ControlOptions o;
+  o.difference_rings = rings;
+  ControlOptimizer opt(scene.two_sided, {}, o);
+  const std::vector<int> active = opt.active_blocks(*sim, window);
+  static Eigen::VectorXd reference;
+  if (reference.size() == 0)
+    reference = opt.evaluate(*sim, window, {}, GradientMode::central, active).gradient;
+  Eigen::VectorXd g;
+  for (auto _ : state)
+    g = opt.evaluate(*sim, window, {}, GradientMode::compressed, active).gradient;
+  // The force terms are analytic and equal in both: their gradient at zero control is zero.
+  state.counters["rel_error"] = (g - reference).norm() / reference.norm();
+  state.counters["variables"] = 3.0 * static_cast<double>(active.size());
+}
+
 }  // namespace
 
 BENCHMARK(BM_BulletFrames)
-    ->ArgNames({"mode", "evaluations"})
-    ->Args({0, 0})
-    ->Args({1, 4})
-    ->Args({2, 4})
-    ->Args({2, 20})
+    ->ArgNames({"mode", "evaluations", "rings"})
+    ->Args({0, 0, 0})
+    ->Args({1, 4, 0})
+    ->Args({2, 4, 0})
+    ->Args({2, 20, 0})
+    ->Args({3, 20, 0})
+    ->Args({4, 20, 0})
+    ->Args({3, 200, 0})
+    ->Args({5, 200, 1})
+    ->Args({5, 200, 3})
+    ->Args({4, 200, 0})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(1);
 BENCHMARK(BM_BulletGradient)->Unit(benchmark::kMillisecond)->Iterations(1);
+BENCHMARK(BM_BulletCompressedGradient)
+    ->ArgName("rings")
+    ->DenseRange(0, 5)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(1);
 BENCHMARK_MAIN();

@@ -319,8 +319,12 @@ class WindowProblem {
     m_has_zero_step = m_frames == 1 && m_zero_first.valid;
   }
 
-  // Energy at z; gradient dE/dz when grad is not null.
-  Eval evaluate(const double* z, double* grad, bool adjoint, bool parallel) {
+  // Energy at z; gradient dE/dz when grad is not null, by `mode` (resolved: central,
+  // compressed or adjoint; compressed falls back to central where it does not apply).
+  Eval evaluate(const double* z, double* grad, GradientMode mode, bool parallel) {
+    const bool adjoint = mode == GradientMode::adjoint;
+    const bool respond = !adjoint && mode == GradientMode::compressed && m_compressed;
+    const bool cotangents = grad && (adjoint || respond);
     const std::vector<Eigen::VectorXd> u = expand(z);
     Eval ev;
     ev.energy = force_terms(u, nullptr, &ev.ef, &ev.et);
@@ -334,8 +338,8 @@ class WindowProblem {
       states.push_back(m_state0);
       positions.push_back(m_zero_positions);
       Vertices g;
-      ev.ec = visibility(0, m_zero_positions, grad && adjoint ? &g : nullptr);
-      if (grad && adjoint) dx.push_back(std::move(g));
+      ev.ec = visibility(0, m_zero_positions, cotangents ? &g : nullptr);
+      if (cotangents) dx.push_back(std::move(g));
       m_snapshot = m_zero_first;
     } else {
       m_sim.restore(m_state0);
@@ -350,8 +354,8 @@ class WindowProblem {
       }
       positions.push_back(m_sim.positions());
       Vertices g;
-      ev.ec += visibility(k, positions.back(), grad && adjoint ? &g : nullptr);
-      if (grad && adjoint) dx.push_back(std::move(g));
+      ev.ec += visibility(k, positions.back(), cotangents ? &g : nullptr);
+      if (cotangents) dx.push_back(std::move(g));
     }
     ev.energy += m_options.weights.visibility * ev.ec;
     if (!grad) return ev;
@@ -378,6 +382,11 @@ class WindowProblem {
       }
       for (int k = 0; k < m_frames; ++k)
         for (int i = 0; i < nv; ++i) grad[k * nv + i] = chain(gu[static_cast<size_t>(k)], i);
+    } else if (respond) {
+      // One frame: dEC/dz_i is the surface cotangent dotted with variable i's response.
+      const std::vector<Vertices> response = this->response(u[0], parallel);
+      for (int i = 0; i < nv; ++i)
+        grad[i] = chain(gu[0], i) + lc * response_dot(response, i, dx[0]);
     } else {
       const int n = num_variables();
       std::vector<double> ep(static_cast<size_t>(n)), em(static_cast<size_t>(n));
@@ -389,6 +398,7 @@ class WindowProblem {
         (q % 2 == 0 ? ep : em)[static_cast<size_t>(i)] = e;
       };
       for_each_probe(m_sim, 2 * n, parallel, run);
+      m_probes += 2 * n;
       for (int i = 0; i < n; ++i) {
         const int k = i / nv;
         const double dec = (ep[static_cast<size_t>(i)] - em[static_cast<size_t>(i)]) / (2.0 * h);
@@ -399,6 +409,125 @@ class WindowProblem {
     ++m_gradients;
     return ev;
   }
+
+  // Probe groups of the difference estimates. The variables of a frame come in units of
+  // m_group consecutive ones (the components of one block or one cluster); a probe perturbs
+  // one component of every unit of a colour. With rings >= 0, one force per vertex block and
+  // a one-frame window, a unit's response is kept on its ball (the vertices of its block grown
+  // by `rings` rings of `adjacency`) and units whose balls do not overlap share a colour
+  // (greedy, in unit order); otherwise every unit has its own colour and keeps its response
+  // on every vertex (plain central differences).
+  void set_probe_groups(const std::vector<std::vector<int>>& adjacency, int rings) {
+    m_group = m_bs == 6 ? 6 : 3;
+    const int units = m_nv / m_group;
+    m_colours.clear();
+    m_ball.assign(static_cast<size_t>(units), {});
+    bool single = true;
+    for (int a = 0; a < units; ++a) single = single && column(a * m_group).size() == 1;
+    m_compressed = rings >= 0 && m_bs == 3 && single && m_frames == 1;
+    if (!m_compressed) {
+      for (int a = 0; a < units; ++a) m_colours.push_back({a});
+      return;
+    }
+    const int nvtx = static_cast<int>(m_layout.vertex_block.size());
+    std::vector<std::vector<int>> block_vertices(static_cast<size_t>(m_layout.num_blocks));
+    for (int v = 0; v < nvtx; ++v)
+      if (const int b = m_layout.vertex_block[static_cast<size_t>(v)]; b >= 0)
+        block_vertices[static_cast<size_t>(b)].push_back(v);
+    std::vector<int> mark(static_cast<size_t>(nvtx), -1);
+    std::vector<std::vector<int>> claim(static_cast<size_t>(nvtx));  // units whose ball has v
+    std::vector<int> colour_of(static_cast<size_t>(units), 0), taken;
+    for (int a = 0; a < units; ++a) {
+      std::vector<int>& ball = m_ball[static_cast<size_t>(a)];
+      auto add = [&](int v) {
+        if (v < 0 || v >= nvtx || mark[static_cast<size_t>(v)] == a) return;
+        mark[static_cast<size_t>(v)] = a;
+        ball.push_back(v);
+      };
+      for (int v : block_vertices[static_cast<size_t>(column(a * m_group).front().component / 3)])
+        add(v);
+      for (int r = 0, begin = 0; r < rings; ++r) {
+        const int end = static_cast<int>(ball.size());
+        for (int q = begin; q < end; ++q)
+          if (const auto v = static_cast<size_t>(ball[static_cast<size_t>(q)]);
+              v < adjacency.size())
+            for (int w : adjacency[v]) add(w);
+        begin = end;
+      }
+      std::sort(ball.begin(), ball.end());
+      for (int v : ball)
+        for (int o : claim[static_cast<size_t>(v)])
+          taken[static_cast<size_t>(colour_of[static_cast<size_t>(o)])] = a;
+      int c = 0;
+      while (c < static_cast<int>(m_colours.size()) && taken[static_cast<size_t>(c)] == a) ++c;
+      if (c == static_cast<int>(m_colours.size())) {
+        m_colours.emplace_back();
+        taken.push_back(-1);
+      }
+      m_colours[static_cast<size_t>(c)].push_back(a);
+      colour_of[static_cast<size_t>(a)] = c;
+      for (int v : ball) claim[static_cast<size_t>(v)].push_back(a);
+    }
+  }
+  int colours() const { return static_cast<int>(m_colours.size()); }
+
+  // The response of the surface positions after frame 0 to every variable of that frame at
+  // its controls u0, by central differences over the probe groups: per variable, the rows of
+  // its unit's ball (#V rows when the ball is empty). 2 * colours() * m_group simulations.
+  std::vector<Vertices> response(const Eigen::VectorXd& u0, bool parallel) {
+    const int probes = static_cast<int>(m_colours.size()) * m_group;
+    const double h = m_options.fd_step;
+    std::vector<Vertices> plus(static_cast<size_t>(probes)), minus(static_cast<size_t>(probes));
+    auto run = [&](Simulator& sim, int q) {
+      const int p = q / 2;
+      StepInput in = input(0, u0);
+      for (int a : m_colours[static_cast<size_t>(p / m_group)])
+        perturb(in.control, a * m_group + p % m_group, q % 2 == 0 ? h : -h);
+      sim.restore(m_state0);
+      sim.step(in);
+      (q % 2 == 0 ? plus : minus)[static_cast<size_t>(p)] = sim.positions();
+    };
+    for_each_probe(m_sim, 2 * probes, parallel, run);
+    m_probes += 2 * probes;
+    std::vector<Vertices> out(static_cast<size_t>(m_nv));
+    for (int p = 0; p < probes; ++p) {
+      const Vertices d = (plus[static_cast<size_t>(p)] - minus[static_cast<size_t>(p)]) / (2.0 * h);
+      for (int a : m_colours[static_cast<size_t>(p / m_group)]) {
+        const std::vector<int>& ball = m_ball[static_cast<size_t>(a)];
+        Vertices& j = out[static_cast<size_t>(a * m_group + p % m_group)];
+        if (ball.empty()) {
+          j = d;
+          continue;
+        }
+        j.resize(static_cast<Eigen::Index>(ball.size()), 3);
+        for (size_t r = 0; r < ball.size(); ++r)
+          j.row(static_cast<Eigen::Index>(r)) = d.row(ball[r]);
+      }
+    }
+    return out;
+  }
+  // Sum over the rows of variable i's response of their dot products with g (#V by 3).
+  double response_dot(const std::vector<Vertices>& response, int i, const Vertices& g) const {
+    const Vertices& j = response[static_cast<size_t>(i)];
+    const std::vector<int>& ball = m_ball[static_cast<size_t>(i / m_group)];
+    if (ball.empty()) return j.cwiseProduct(g).sum();
+    double out = 0.0;
+    for (size_t r = 0; r < ball.size(); ++r)
+      out += j.row(static_cast<Eigen::Index>(r)).dot(g.row(ball[r]));
+    return out;
+  }
+  // x += s * (variable i's response).
+  void add_response(Vertices& x, const std::vector<Vertices>& response, int i, double s) const {
+    const Vertices& j = response[static_cast<size_t>(i)];
+    const std::vector<int>& ball = m_ball[static_cast<size_t>(i / m_group)];
+    if (ball.empty()) {
+      x += s * j;
+      return;
+    }
+    for (size_t r = 0; r < ball.size(); ++r)
+      x.row(ball[r]) += s * j.row(static_cast<Eigen::Index>(r));
+  }
+  int probes() const { return m_probes; }
 
   // Hard-constraint mode: c = margin - s_j <= 0 for the listed (frame, triangle) pairs, and
   // the Jacobian by central differences.
@@ -443,6 +572,7 @@ class WindowProblem {
       (q % 2 == 0 ? cp : cm)[static_cast<size_t>(i)] = std::move(v);
     };
     for_each_probe(m_sim, 2 * n, parallel, run);
+    m_probes += 2 * n;
     for (int j = 0; j < m; ++j)
       for (int i = 0; i < n; ++i)
         jac[j * n + i] =
@@ -488,16 +618,30 @@ class WindowProblem {
   Snapshot m_zero_first;
   bool m_has_zero_step = false;
   int m_nv = 0;  // variables per frame
+  // Probe groups (set_probe_groups()).
+  int m_group = 3;
+  bool m_compressed = false;
+  std::vector<std::vector<int>> m_colours;  // units per colour
+  std::vector<std::vector<int>> m_ball;     // per unit, sorted; empty = every vertex
+  int m_probes = 0;
   std::vector<std::pair<int, int>> m_constraints;
   double m_gradient_ms = 0.0;
   int m_gradients = 0;
+};
+
+// The energy of a window with its dynamics linearized at a point, minimized by the linearized
+// search between true evaluations.
+class SearchModel {
+ public:
+  virtual ~SearchModel() = default;
+  virtual double evaluate(const double* z, double* grad) = 0;
 };
 
 // The window energy with the dynamics linearized at a point z_lin: the positions after frame k
 // are X_k + dX_k, X_k those of the true evaluation at z_lin and dX_k the tangent of the chained
 // step linearizations along u(z) - u(z_lin); the force terms are exact. Each evaluation costs
 // one jvp per frame, each gradient one vjp per frame (Simulator::linearize_step()).
-class LinearModel {
+class LinearModel final : public SearchModel {
  public:
   // `problem`'s latest evaluate() must be the one at z_lin.
   LinearModel(WindowProblem& problem, const Eigen::VectorXd& z_lin)
@@ -510,7 +654,7 @@ class LinearModel {
                                          problem.input(k, m_u_lin[static_cast<size_t>(k)])));
   }
 
-  double evaluate(const double* z, double* grad) {
+  double evaluate(const double* z, double* grad) override {
     const auto t0 = Clock::now();
     Simulator& sim = m_problem.simulator();
     const int frames = m_problem.frames();
@@ -550,19 +694,60 @@ class LinearModel {
   std::vector<std::unique_ptr<StepLinearization>> m_lin;
 };
 
-bool use_adjoint(const Simulator& sim, GradientMode mode) {
+// A one-frame window whose positions after the step are X + sum_i (z_i - z_lin_i) J_i: X those
+// of the true evaluation at z_lin, J_i the response to variable i estimated by (compressed)
+// central differences at z_lin (WindowProblem::response(), the probes of one gradient); the
+// force terms are exact. Evaluations and gradients are products with the responses.
+class DifferenceModel final : public SearchModel {
+ public:
+  // `problem`'s latest evaluate() must be the one at z_lin.
+  DifferenceModel(WindowProblem& problem, const Eigen::VectorXd& z_lin, bool parallel)
+      : m_problem(problem), m_z_lin(z_lin), m_x_lin(problem.last_positions().front()) {
+    const auto t0 = Clock::now();
+    m_response = problem.response(problem.expand(z_lin.data()).front(), parallel);
+    problem.add_gradient(ms_since(t0));
+  }
+
+  double evaluate(const double* z, double* grad) override {
+    const std::vector<Eigen::VectorXd> u = m_problem.expand(z);
+    std::vector<Eigen::VectorXd> gu;
+    double energy = m_problem.force_terms(u, grad ? &gu : nullptr, nullptr, nullptr);
+    const int n = m_problem.variables_per_frame();
+    Vertices x = m_x_lin;
+    for (int i = 0; i < n; ++i)
+      if (const double dz = z[i] - m_z_lin[i]; dz != 0.0)
+        m_problem.add_response(x, m_response, i, dz);
+    const double lc = m_problem.options().weights.visibility;
+    Vertices gx;
+    energy += lc * m_problem.visibility(0, x, grad ? &gx : nullptr);
+    if (!grad) return energy;
+    for (int i = 0; i < n; ++i)
+      grad[i] = m_problem.chain(gu[0], i) + lc * m_problem.response_dot(m_response, i, gx);
+    return energy;
+  }
+
+ private:
+  WindowProblem& m_problem;
+  Eigen::VectorXd m_z_lin;
+  Vertices m_x_lin;
+  std::vector<Vertices> m_response;
+};
+
+// The gradient mode `mode` resolves to for `sim`: central, compressed or adjoint.
+GradientMode resolve_gradient(const Simulator& sim, GradientMode mode) {
   switch (mode) {
     case GradientMode::central:
-      return false;
+    case GradientMode::compressed:
+      return mode;
     case GradientMode::adjoint:
       if (!sim.has_derivatives())
         throw std::invalid_argument("gradient: adjoint requested but " + sim.name() +
                                     " offers no derivatives");
-      return true;
+      return mode;
     case GradientMode::automatic:
-      return sim.has_derivatives();
+      return sim.has_derivatives() ? GradientMode::adjoint : GradientMode::compressed;
   }
-  return false;
+  return GradientMode::central;
 }
 
 int window_frames(const ControlOptions& options, std::span<const ControlFrameInput> window) {
@@ -660,6 +845,7 @@ void ControlOptimizer::set_options(const ControlOptions& options) {
   if (options.max_evaluations < 1) throw std::invalid_argument("max_evaluations must be >= 1");
   if (!(options.occlusion_margin >= 0.0 && options.occlusion_margin < 1.0))
     throw std::invalid_argument("occlusion_margin must be in [0, 1)");
+  if (options.difference_rings < 0) throw std::invalid_argument("difference_rings must be >= 0");
   if (options.max_linearizations < 1)
     throw std::invalid_argument("max_linearizations must be >= 1");
   if (!(options.linearized_ftol_initial >= 0.0 && options.linearized_ftol_initial < 1.0))
@@ -806,7 +992,7 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
                                              const Eigen::VectorXd& u, GradientMode mode,
                                              const std::vector<int>& active) {
   const int frames = window_frames(m_options, window);
-  const bool adjoint = use_adjoint(sim, mode);
+  const GradientMode resolved = resolve_gradient(sim, mode);
   WindowProblem problem(sim, window, frames, m_triangles, m_interior, m_options, m_previous,
                         m_reference);
   const int size = problem.size();
@@ -821,10 +1007,11 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
       if (is_free[static_cast<size_t>(b)]) blocks.push_back(b);
   }
   problem.set_active(blocks);
+  problem.set_probe_groups(m_adjacency, m_options.difference_rings);
   problem.set_fixed(uu);
   const Eigen::VectorXd z = problem.to_z(uu);
   Eigen::VectorXd gz(z.size());
-  const auto ev = problem.evaluate(z.data(), gz.data(), adjoint, m_options.parallel);
+  const auto ev = problem.evaluate(z.data(), gz.data(), resolved, m_options.parallel);
   sim.restore(problem.state0());
 
   ControlEnergyEval out;
@@ -832,6 +1019,7 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
   out.visibility_energy = ev.ec;
   out.force_energy = ev.ef;
   out.temporal_energy = ev.et;
+  out.probes = problem.probes();
   out.gradient = Eigen::VectorXd::Zero(frames * size);
   const int nv = problem.variables_per_frame();
   for (int k = 0; k < frames; ++k)
@@ -877,7 +1065,8 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   const auto t_start = Clock::now();
   capture_reference(sim);
   const int frames = window_frames(m_options, window);
-  const bool adjoint = use_adjoint(sim, m_options.gradient);
+  const GradientMode mode = resolve_gradient(sim, m_options.gradient);
+  const bool adjoint = mode == GradientMode::adjoint;
   const bool hard = m_options.constraint == ConstraintMode::hard;
   if (hard && m_options.solver == ControlSolver::lbfgs)
     throw std::invalid_argument("the hard-constraint mode needs slsqp, mma, cobyla or ipopt");
@@ -885,7 +1074,10 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   ControlFrameResult r;
   r.solver = m_options.solver;
   r.adjoint = adjoint && !hard;
-  const bool linear = r.adjoint && m_options.linearized && sim.has_linearization();
+  // The linearized search: on the step linearizations, or with differences on the responses
+  // of a one-frame window.
+  const bool linear =
+      m_options.linearized && !hard && (adjoint ? sim.has_linearization() : frames == 1);
   r.linearized = linear;
 
   std::vector<Vertices> predicted;  // uncontrolled window, when the active-set rule simulated it
@@ -905,6 +1097,8 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   } else {
     problem.set_active(active);
   }
+  problem.set_probe_groups(m_adjacency,
+                           mode == GradientMode::compressed ? m_options.difference_rings : -1);
   if (predicted_first.valid) problem.set_zero_step(predicted.front(), predicted_first);
   r.active_blocks = static_cast<int>(active.size());
   const int n = problem.num_variables();
@@ -954,7 +1148,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
               grad[k * nv + i] = problem.chain(gu[static_cast<size_t>(k)], i);
         }
       } else {
-        e = problem.evaluate(z, grad, adjoint, par).energy;
+        e = problem.evaluate(z, grad, mode, par).energy;
       }
       ++evaluations;
       if (!hard && e < best) {
@@ -987,7 +1181,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       initial.energy += m_options.weights.visibility * initial.ec;
       best_snapshot = predicted_first;
     } else {
-      initial = problem.evaluate(z0.data(), nullptr, adjoint, par);
+      initial = problem.evaluate(z0.data(), nullptr, mode, par);
       best_snapshot = problem.last_snapshot();
     }
     r.initial_energy = initial.energy;
@@ -1026,13 +1220,18 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
           out.status = ControlStatus::cancelled;
           break;
         }
-        LinearModel model(problem, z_cur);  // the latest evaluate() is the one at z_cur
+        // The latest evaluate() is the one at z_cur.
+        std::unique_ptr<SearchModel> model;
+        if (adjoint)
+          model = std::make_unique<LinearModel>(problem, z_cur);
+        else
+          model = std::make_unique<DifferenceModel>(problem, z_cur, par);
         ++linearizations;
         double model_best = std::numeric_limits<double>::infinity();
         Eigen::VectorXd z_model = z_cur;
         detail::SolverProblem mp = sp;
         mp.objective = [&](const double* z, double* grad) {
-          const double e = model.evaluate(z, grad);
+          const double e = model->evaluate(z, grad);
           ++model_evaluations;
           if (e < model_best) {
             model_best = e;
@@ -1046,7 +1245,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
         bool accepted = false;
         for (double t : {1.0, 0.5, 0.25}) {
           const Eigen::VectorXd z_try = z_cur + t * (z_model - z_cur);
-          const double e = problem.evaluate(z_try.data(), nullptr, adjoint, par).energy;
+          const double e = problem.evaluate(z_try.data(), nullptr, mode, par).energy;
           ++evaluations;
           if (callbacks.progress) callbacks.progress({evaluations, e, std::min(e, e_cur)});
           if (e < e_cur) {
@@ -1071,8 +1270,8 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       r.evaluations = evaluations;
       r.gradient_evaluations = problem.gradients();
       r.gradient_ms = problem.gradient_ms();
-      if (frames > 1)
-        r.final_energy = problem.evaluate(z_best.data(), nullptr, adjoint, par).energy;
+      r.probes = problem.probes();
+      if (frames > 1) r.final_energy = problem.evaluate(z_best.data(), nullptr, mode, par).energy;
     } else {
       const auto t_solve = Clock::now();
       const detail::SolverOutcome out = m_options.solver == ControlSolver::ipopt
@@ -1085,17 +1284,17 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
       r.evaluations = evaluations;
       r.gradient_evaluations = problem.gradients();
       r.gradient_ms = problem.gradient_ms();
+      r.probes = problem.probes();
       if (hard && out.z.size() == n) {
         z_best = out.z;
         best_snapshot.valid = false;  // the solver's point, not necessarily an evaluated one
       }
       // With one frame the committed step below gives the window energy at the solution.
-      if (frames > 1)
-        r.final_energy = problem.evaluate(z_best.data(), nullptr, adjoint, par).energy;
+      if (frames > 1) r.final_energy = problem.evaluate(z_best.data(), nullptr, mode, par).energy;
     }
   } else {
     r.message = "no control block at risk";
-    r.initial_energy = r.final_energy = problem.evaluate(z0.data(), nullptr, adjoint, false).energy;
+    r.initial_energy = r.final_energy = problem.evaluate(z0.data(), nullptr, mode, false).energy;
     best_snapshot = problem.last_snapshot();
   }
 

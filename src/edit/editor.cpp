@@ -122,9 +122,11 @@ ControlOptions control_options(const SceneControl& c) {
   o.weights.temporal = c.weight_temporal;
   o.window = c.window;
   o.solver = parse_control_solver(c.solver);
-  o.gradient = c.gradient == "central"   ? GradientMode::central
-               : c.gradient == "adjoint" ? GradientMode::adjoint
-                                         : GradientMode::automatic;
+  o.gradient = c.gradient == "central"      ? GradientMode::central
+               : c.gradient == "compressed" ? GradientMode::compressed
+               : c.gradient == "adjoint"    ? GradientMode::adjoint
+                                            : GradientMode::automatic;
+  o.difference_rings = c.difference_rings;
   o.active_set = c.active_set == "all" ? ActiveSet::all : ActiveSet::at_risk;
   o.max_evaluations = c.max_iterations;
   o.initial_guess = c.warm_start ? InitialGuess::previous : InitialGuess::zero;

@@ -374,7 +374,7 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     r.check_map(n, "control",
                 {"enabled", "weights", "window", "solver", "gradient", "active_set",
                  "max_iterations", "warm_start", "margin", "force_bound", "clusters", "linearized",
-                 "max_linearizations", "linearized_tolerance"});
+                 "max_linearizations", "linearized_tolerance", "difference_rings"});
     SceneControl& c = s.control;
     for (const auto& kv : n) c.given[kv.first.as<std::string>()] = kv.first.Mark().line + 1;
     if (n["enabled"]) c.enabled = r.boolean(n["enabled"], "control.enabled");
@@ -399,7 +399,8 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       c.solver =
           r.choice(n["solver"], "control.solver", {"slsqp", "mma", "lbfgs", "cobyla", "ipopt"});
     if (n["gradient"])
-      c.gradient = r.choice(n["gradient"], "control.gradient", {"auto", "central", "adjoint"});
+      c.gradient =
+          r.choice(n["gradient"], "control.gradient", {"auto", "central", "compressed", "adjoint"});
     if (n["active_set"])
       c.active_set = r.choice(n["active_set"], "control.active_set", {"auto", "all"});
     if (n["max_iterations"]) {
@@ -415,6 +416,11 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     if (n["clusters"]) {
       c.clusters = r.integer(n["clusters"], "control.clusters");
       if (c.clusters < 0) r.fail(n["clusters"], "control.clusters", "must not be negative");
+    }
+    if (n["difference_rings"]) {
+      c.difference_rings = r.integer(n["difference_rings"], "control.difference_rings");
+      if (c.difference_rings < 0 || c.difference_rings > 50)
+        r.fail(n["difference_rings"], "control.difference_rings", "must be between 0 and 50");
     }
     if (n["linearized"]) c.linearized = r.boolean(n["linearized"], "control.linearized");
     if (n["max_linearizations"]) {
@@ -578,6 +584,7 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::Key << "margin" << YAML::Value << c.margin;
   e << YAML::Key << "force_bound" << YAML::Value << c.force_bound;
   e << YAML::Key << "clusters" << YAML::Value << c.clusters;
+  e << YAML::Key << "difference_rings" << YAML::Value << c.difference_rings;
   e << YAML::Key << "linearized" << YAML::Value << c.linearized;
   e << YAML::Key << "max_linearizations" << YAML::Value << c.max_linearizations;
   e << YAML::Key << "linearized_tolerance" << YAML::Value << c.linearized_tolerance;

@@ -215,15 +215,81 @@ TEST(ControlOptimizer, ClustersShareOneAccelerationAndKeepTheSheetTurnedAway) {
 }
 
 TEST(ControlOptimizer, CentralDifferencesThroughABlackBoxEngine) {
-  BlackBoxParticles sim(sheet(kEdgeOn), {0});
+  // Every way of searching without derivatives: (compressed) central differences, on the
+  // responses (linearized) or per evaluation.
+  for (GradientMode mode : {GradientMode::automatic, GradientMode::central})
+    for (bool linearized : {true, false}) {
+      BlackBoxParticles sim(sheet(kEdgeOn), {0});
+      ControlOptions o;
+      o.gradient = mode;
+      o.linearized = linearized;
+      o.difference_rings = 0;  // free particles: exact (see the next test)
+      ControlOptimizer opt(sheet_triangles(), {}, o);
+      EXPECT_THROW(opt.evaluate(sim, frames(1), {}, GradientMode::adjoint), std::invalid_argument);
+      const ControlFrameResult r = opt.step(sim, frames(1));
+      SCOPED_TRACE(testing::Message()
+                   << "mode " << static_cast<int>(mode) << " linearized " << linearized);
+      EXPECT_FALSE(r.adjoint);
+      EXPECT_EQ(r.linearized, linearized);
+      EXPECT_NE(r.status, ControlStatus::failed);
+      EXPECT_GT(r.gradient_evaluations, 0);
+      EXPECT_LT(r.final_energy, r.initial_energy);
+      // A gradient or response costs 2 probes per variable, or (compressed: automatic on a
+      // black box) 2 per variable of one particle and colour, here one colour.
+      const int per_gradient = mode == GradientMode::central ? 2 * r.variables : 6;
+      EXPECT_GE(r.probes, per_gradient);
+      EXPECT_EQ(r.probes % per_gradient, 0);
+      if (linearized) {
+        EXPECT_LE(r.probes, o.max_linearizations * per_gradient);
+      }
+    }
+}
+
+TEST(ControlOptimizer, CompressedDifferencesAreExactWhenTheResponseIsLocal) {
+  // Free particles: a force moves its own particle only, so probing far-apart particles
+  // together loses nothing and the compressed gradient is the central one (to rounding).
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
   ControlOptions o;
+  o.weights = {1.0, 0.1, 0.1};
   ControlOptimizer opt(sheet_triangles(), {}, o);
-  EXPECT_THROW(opt.evaluate(sim, frames(1), {}, GradientMode::adjoint), std::invalid_argument);
-  const ControlFrameResult r = opt.step(sim, frames(1));
-  EXPECT_FALSE(r.adjoint);
-  EXPECT_NE(r.status, ControlStatus::failed);
-  EXPECT_GT(r.gradient_evaluations, 0);
-  EXPECT_LT(r.final_energy, r.initial_energy);
+  const auto f = frames(1);
+  const int size = sim.control_layout().size();
+  Eigen::VectorXd u = Eigen::VectorXd::Zero(size);
+  for (int i = 0; i < u.size(); ++i) u[i] = 0.02 * std::sin(0.7 * i);
+  const SimState before = sim.save();
+  const auto adj = opt.evaluate(sim, f, u, GradientMode::adjoint);
+  const auto cen = opt.evaluate(sim, f, u, GradientMode::central);
+  EXPECT_GT(adj.visibility_energy, 0.0);
+  EXPECT_EQ(adj.probes, 0);
+  EXPECT_EQ(cen.probes, 2 * 3 * (kN * kN - 1));  // every free particle on its own
+  int previous = 0;
+  for (int rings : {0, 1, 2}) {
+    o.difference_rings = rings;
+    for (bool parallel : {false, true}) {
+      o.parallel = parallel;
+      opt.set_options(o);
+      const auto cmp = opt.evaluate(sim, f, u, GradientMode::compressed);
+      EXPECT_EQ(cmp.energy, adj.energy);
+      EXPECT_LT(relative_error(adj.gradient, cmp.gradient), 1e-4) << "rings " << rings;
+      EXPECT_EQ(cmp.gradient.head<3>().norm(), 0.0);  // anchored
+      // Rings 0: all particles in one probe per axis and sign. More rings: more colours, and
+      // the particles of a colour are more than 2 * rings edges apart.
+      if (rings == 0) {
+        EXPECT_EQ(cmp.probes, 6);
+      } else {
+        EXPECT_GT(cmp.probes, previous);
+      }
+      EXPECT_LT(cmp.probes, cen.probes);
+      if (parallel) previous = cmp.probes;
+    }
+  }
+  EXPECT_EQ(sim.save().values, before.values);
+  EXPECT_THROW(
+      {
+        o.difference_rings = -1;
+        opt.set_options(o);
+      },
+      std::invalid_argument);
 }
 
 TEST(ControlOptimizer, WindowCommitsOnlyTheFirstFrame) {

@@ -155,6 +155,22 @@ TEST(Scene, ControlClusters) {
   EXPECT_NE(e.find("negative"), std::string::npos) << e;
 }
 
+TEST(Scene, CompressedDifferences) {
+  std::string text = kFull;
+  const std::string gradient = "  gradient: central";
+  text.replace(text.find(gradient), gradient.size(),
+               "  gradient: compressed\n  difference_rings: 3");
+  const pbve::Scene s = parse_scene(text, "/scenes/s.yaml");
+  EXPECT_EQ(s.control.gradient, "compressed");
+  EXPECT_EQ(s.control.difference_rings, 3);
+  EXPECT_EQ(parse_scene(kFull, "/scenes/s.yaml").control.difference_rings, 2);
+  text.replace(text.find("difference_rings: 3"), 19, "difference_rings: -1");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":23:"), std::string::npos) << e;
+  EXPECT_NE(e.find("control.difference_rings"), std::string::npos) << e;
+  EXPECT_NE(e.find("between 0 and 50"), std::string::npos) << e;
+}
+
 // kFull with `regions` (one entry per line) in place of its `substeps: 12` line (line 15).
 std::string with_regions(const std::string& entries) {
   std::string text = kFull;

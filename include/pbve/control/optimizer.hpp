@@ -20,11 +20,14 @@
 /// of m_b * g0 * arm_b, arm_b from ControlLayout::block_arm or torque_arm), which makes the
 /// problem well scaled for every solver.
 ///
-/// Gradients. The visibility term is differentiated either by central differences through
+/// Gradients. The visibility term is differentiated by central differences through
 /// Simulator::save()/restore() (any engine; 2 simulations per variable, parallel over
-/// clones with TBB and bit-identical to the serial path) or by the adjoint (one forward pass
-/// and one chain of Simulator::step_vjp() back through the window) when the simulator offers
-/// derivatives. EF and ET have analytic gradients.
+/// clones with TBB and bit-identical to the serial path), by compressed central differences
+/// (forces on vertices far enough apart probed together: 2 simulations per variable of one
+/// vertex and per colour of a distance colouring of the active vertices, see
+/// ControlOptions::difference_rings) or by the adjoint (one forward pass and one chain of
+/// Simulator::step_vjp() back through the window) when the simulator offers derivatives.
+/// EF and ET have analytic gradients.
 
 #include <chrono>
 #include <cstdint>
@@ -53,9 +56,18 @@ enum class ControlSolver {
 
 /// How the gradient of the visibility term is obtained.
 enum class GradientMode {
-  automatic,  ///< adjoint when Simulator::has_derivatives(), central differences otherwise
+  automatic,  ///< adjoint when Simulator::has_derivatives(), compressed differences otherwise
   central,    ///< central differences through save/restore (any simulator)
-  adjoint,    ///< Simulator::step_vjp(); throws std::invalid_argument when not offered
+  /// Central differences with compressed probes (Curtis-Powell-Reid): the response of a
+  /// one-frame step to the force on one vertex is taken as zero beyond
+  /// ControlOptions::difference_rings rings of vertex adjacency, so the forces on vertices
+  /// whose neighbourhoods of that radius do not overlap are perturbed together and each
+  /// surface vertex's response is credited to the one of them it is near. An approximation
+  /// (what lies beyond the rings is dropped), exact up to rounding for an engine whose
+  /// one-frame response is that local. Applies to one force per vertex in one-frame windows;
+  /// clusters, body wrenches and longer windows use plain central differences.
+  compressed,
+  adjoint,  ///< Simulator::step_vjp(); throws std::invalid_argument when not offered
 };
 
 /// Which control blocks are optimized.
@@ -154,15 +166,24 @@ struct ControlOptions {
   /// Run central-difference probes in parallel over simulator clones (TBB). The result is
   /// bit-identical to the serial path.
   bool parallel = true;
+  /// Compressed differences (GradientMode::compressed): rings of vertex adjacency (on the
+  /// optimizer's triangles) within which a vertex force is assumed to move the surface in one
+  /// frame. Vertices probed together are at least 2 * difference_rings + 1 edges apart; a
+  /// larger value is more accurate and needs more probes (docs/benchmarks.md measures the
+  /// gradient error of each value on Bullet cloth).
+  int difference_rings = 2;
 
-  /// With adjoint gradients and a simulator that offers Simulator::linearize_step(): search on
-  /// the linearized dynamics. Each outer iteration linearizes the window at the current
-  /// controls (one linearization per frame), runs the solver on the energy of that model (each
-  /// evaluation and gradient a product with the linearizations instead of a simulation, at
-  /// most max_evaluations of them), then simulates the solver's point: it is kept when it
-  /// lowers the true energy, else half and a quarter of the move are tried, and the search
-  /// stops when none does or the true energy improves by less than ftol_rel. At most
-  /// max_linearizations outer iterations. Off: every evaluation simulates the window.
+  /// Search on the linearized dynamics, with adjoint gradients and a simulator that offers
+  /// Simulator::linearize_step(), or with (compressed) central differences and a one-frame
+  /// window. Each outer iteration linearizes the window at the current controls (one
+  /// linearization per frame; with differences, the response of the surface positions to
+  /// every variable, estimated by the same probes as one gradient), runs the solver on the
+  /// energy of that model (each evaluation and gradient a product with the linearizations
+  /// instead of a simulation, at most max_evaluations of them), then simulates the solver's
+  /// point: it is kept when it lowers the true energy, else half and a quarter of the move
+  /// are tried, and the search stops when none does or the true energy improves by less than
+  /// ftol_rel. At most max_linearizations outer iterations. Off: every evaluation simulates
+  /// the window.
   bool linearized = true;
   int max_linearizations = 4;
   /// Linearized search: it also stops after an outer iteration that lowers the true energy by
@@ -225,7 +246,9 @@ struct ControlFrameResult {
   int linearizations = 0;        ///< linearized search: outer iterations
   int model_evaluations = 0;     ///< linearized search: evaluations of the linearized model
   int gradient_evaluations = 0;  ///< gradients computed
-  int active_blocks = 0;         ///< control blocks optimized (per window frame)
+  /// Simulations run by central differences (gradients and linearizations), one frame each.
+  int probes = 0;
+  int active_blocks = 0;  ///< control blocks optimized (per window frame)
   int variables = 0;  ///< optimization variables (active_blocks * block size * W; 3 per cluster)
 
   /// Energy terms of the committed step (first window frame): EC of the positions after the
@@ -258,6 +281,7 @@ struct ControlEnergyEval {
   /// dE/du, W * ControlLayout::size() entries (frame-major), newtons^-1; entries of blocks not
   /// in the active set are 0.
   Eigen::VectorXd gradient;
+  int probes = 0;  ///< one-frame simulations run by (compressed) central differences
 };
 
 /// The per-frame / windowed control-force optimizer. Holds the previous frame's forces (f~)

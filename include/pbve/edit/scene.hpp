@@ -97,7 +97,7 @@ struct SceneControl {
   double weight_temporal = 0.001;
   int window = 1;
   std::string solver = "slsqp";     ///< slsqp | mma | lbfgs | cobyla | ipopt
-  std::string gradient = "auto";    ///< auto | central | adjoint
+  std::string gradient = "auto";    ///< auto | central | compressed | adjoint
   std::string active_set = "auto";  ///< auto | all
   int max_iterations = 200;         ///< objective evaluations (NLopt) / iterations (Ipopt)
   bool warm_start = false;          ///< start from the previous frame's forces (else zero)
@@ -108,7 +108,10 @@ struct SceneControl {
   /// Reduced control space: 0 = one force per active vertex; K > 0 = one acceleration per
   /// spatial cluster of at most K clusters (ControlOptions::clusters).
   int clusters = 0;
-  /// Search on the linearized dynamics when the engine offers them (ControlOptions::linearized).
+  /// Rings of vertex adjacency of compressed differences (ControlOptions::difference_rings).
+  int difference_rings = 2;
+  /// Search on the linearized dynamics (ControlOptions::linearized): on the engine's step
+  /// linearizations, or on responses estimated by differences.
   bool linearized = true;
   /// Outer iterations of the linearized search (ControlOptions::max_linearizations).
   int max_linearizations = 4;
