@@ -9,10 +9,11 @@
 // same matrix with the same analysis give the same bits, whichever thread computes them.
 
 #include <memory>
-#include <mutex>
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
+
+#include "shared_once.hpp"
 
 namespace pbve::mass_spring::detail {
 
@@ -39,17 +40,7 @@ class CholeskyAnalysis {
 };
 
 /// An analysis computed on first use, once, whichever thread asks first.
-class SharedCholeskyAnalysis {
- public:
-  std::shared_ptr<const CholeskyAnalysis> get(const Eigen::SparseMatrix<double>& pattern) const {
-    std::call_once(m_once, [&] { m_analysis = std::make_shared<const CholeskyAnalysis>(pattern); });
-    return m_analysis;
-  }
-
- private:
-  mutable std::once_flag m_once;
-  mutable std::shared_ptr<const CholeskyAnalysis> m_analysis;
-};
+using SharedCholeskyAnalysis = SharedOnce<CholeskyAnalysis>;
 
 /// A numeric factorization A = L L^T (supernodal), or A = L D L^T (simplicial, no pivoting:
 /// also for indefinite matrices whose leading minors are nonsingular) of matrices with the

@@ -228,7 +228,8 @@ struct MassSpringSimulator::Impl {
   } fallback;
 
   std::shared_ptr<const detail::CholeskyAnalysis> analysis() const {
-    return model->cholesky->get(model->pattern);
+    return model->cholesky->get(
+        [this] { return std::make_shared<const detail::CholeskyAnalysis>(model->pattern); });
   }
 
   // Start of a step() or step_vjp() from `start` = [x; v]: keeps `base` if it was made for

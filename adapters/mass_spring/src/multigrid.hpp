@@ -13,12 +13,13 @@
 // matrix-vector products: both linear in the number of nodes.
 
 #include <memory>
-#include <mutex>
 #include <vector>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
+
+#include "shared_once.hpp"
 
 namespace pbve::mass_spring::detail {
 
@@ -81,18 +82,7 @@ class MultigridHierarchy {
 };
 
 /// A hierarchy built on first use, once, whichever thread asks first.
-class SharedMultigridHierarchy {
- public:
-  template <class Build>
-  std::shared_ptr<const MultigridHierarchy> get(Build build) const {
-    std::call_once(m_once, [&] { m_hierarchy = build(); });
-    return m_hierarchy;
-  }
-
- private:
-  mutable std::once_flag m_once;
-  mutable std::shared_ptr<const MultigridHierarchy> m_hierarchy;
-};
+using SharedMultigridHierarchy = SharedOnce<MultigridHierarchy>;
 
 /// The numeric part: the Galerkin matrices of one J and their smoothers. (Single precision
 /// would halve the matrix traffic that bounds a V-cycle's speed, but at 16k cloth vertices it
