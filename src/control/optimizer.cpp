@@ -470,10 +470,18 @@ class WindowProblem {
     }
   }
   int colours() const { return static_cast<int>(m_colours.size()); }
+  // Numbers response() holds at its peak: the responses and the probes' positions.
+  double response_numbers() const {
+    const double nvtx = static_cast<double>(m_layout.vertex_block.size());
+    double kept = 0.0;
+    for (size_t a = 0; a < m_ball.size(); ++a)
+      kept += 3.0 * m_group * (m_compressed ? static_cast<double>(m_ball[a].size()) : nvtx);
+    return kept + 2.0 * 3.0 * nvtx * static_cast<double>(m_colours.size()) * m_group;
+  }
 
   // The response of the surface positions after frame 0 to every variable of that frame at
   // its controls u0, by central differences over the probe groups: per variable, the rows of
-  // its unit's ball (#V rows when the ball is empty). 2 * colours() * m_group simulations.
+  // its unit's ball (compressed) or #V rows. 2 * colours() * m_group simulations.
   std::vector<Vertices> response(const Eigen::VectorXd& u0, bool parallel) {
     const int probes = static_cast<int>(m_colours.size()) * m_group;
     const double h = m_options.fd_step;
@@ -492,10 +500,12 @@ class WindowProblem {
     std::vector<Vertices> out(static_cast<size_t>(m_nv));
     for (int p = 0; p < probes; ++p) {
       const Vertices d = (plus[static_cast<size_t>(p)] - minus[static_cast<size_t>(p)]) / (2.0 * h);
+      plus[static_cast<size_t>(p)] = Vertices();
+      minus[static_cast<size_t>(p)] = Vertices();
       for (int a : m_colours[static_cast<size_t>(p / m_group)]) {
         const std::vector<int>& ball = m_ball[static_cast<size_t>(a)];
         Vertices& j = out[static_cast<size_t>(a * m_group + p % m_group)];
-        if (ball.empty()) {
+        if (!m_compressed) {
           j = d;
           continue;
         }
@@ -510,7 +520,7 @@ class WindowProblem {
   double response_dot(const std::vector<Vertices>& response, int i, const Vertices& g) const {
     const Vertices& j = response[static_cast<size_t>(i)];
     const std::vector<int>& ball = m_ball[static_cast<size_t>(i / m_group)];
-    if (ball.empty()) return j.cwiseProduct(g).sum();
+    if (!m_compressed) return j.cwiseProduct(g).sum();
     double out = 0.0;
     for (size_t r = 0; r < ball.size(); ++r)
       out += j.row(static_cast<Eigen::Index>(r)).dot(g.row(ball[r]));
@@ -520,7 +530,7 @@ class WindowProblem {
   void add_response(Vertices& x, const std::vector<Vertices>& response, int i, double s) const {
     const Vertices& j = response[static_cast<size_t>(i)];
     const std::vector<int>& ball = m_ball[static_cast<size_t>(i / m_group)];
-    if (ball.empty()) {
+    if (!m_compressed) {
       x += s * j;
       return;
     }
@@ -622,7 +632,7 @@ class WindowProblem {
   int m_group = 3;
   bool m_compressed = false;
   std::vector<std::vector<int>> m_colours;  // units per colour
-  std::vector<std::vector<int>> m_ball;     // per unit, sorted; empty = every vertex
+  std::vector<std::vector<int>> m_ball;     // per unit, sorted (compressed; else every vertex)
   int m_probes = 0;
   std::vector<std::pair<int, int>> m_constraints;
   double m_gradient_ms = 0.0;
@@ -1076,9 +1086,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   r.adjoint = adjoint && !hard;
   // The linearized search: on the step linearizations, or with differences on the responses
   // of a one-frame window.
-  const bool linear =
-      m_options.linearized && !hard && (adjoint ? sim.has_linearization() : frames == 1);
-  r.linearized = linear;
+  bool linear = m_options.linearized && !hard && (adjoint ? sim.has_linearization() : frames == 1);
 
   std::vector<Vertices> predicted;  // uncontrolled window, when the active-set rule simulated it
   WindowProblem::Snapshot predicted_first;
@@ -1099,6 +1107,11 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   }
   problem.set_probe_groups(m_adjacency,
                            mode == GradientMode::compressed ? m_options.difference_rings : -1);
+  // Responses that would not fit in memory (plain central differences of thousands of vertex
+  // forces on a large mesh: #variables x #V x 3 numbers): every evaluation simulates instead.
+  constexpr double kMaxResponseNumbers = 1.25e8;  // 1 GB
+  if (linear && !adjoint && problem.response_numbers() > kMaxResponseNumbers) linear = false;
+  r.linearized = linear;
   if (predicted_first.valid) problem.set_zero_step(predicted.front(), predicted_first);
   r.active_blocks = static_cast<int>(active.size());
   const int n = problem.num_variables();

@@ -183,7 +183,9 @@ struct ControlOptions {
   /// point: it is kept when it lowers the true energy, else half and a quarter of the move
   /// are tried, and the search stops when none does or the true energy improves by less than
   /// ftol_rel. At most max_linearizations outer iterations. Off: every evaluation simulates
-  /// the window.
+  /// the window. The responses take 3 numbers per variable and per surface vertex (compressed:
+  /// per vertex of its rings); when they would exceed 1.25e8 numbers (1 GB), every evaluation
+  /// simulates instead.
   bool linearized = true;
   int max_linearizations = 4;
   /// Linearized search: it also stops after an outer iteration that lowers the true energy by
