@@ -17,9 +17,11 @@
 //   formulation), parallel; a per-evaluation frame costs about one such gradient per evaluation.
 // - BM_BulletCompressedGradient/rings:R: one compressed gradient over the active set of frame
 //   24, its probes and its relative error against plain central differences.
+// Environment: LAST=F ends the frames of BM_BulletFrames at F instead of 29.
 
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <memory>
 #include <span>
 #include <vector>
@@ -37,7 +39,8 @@ using pbve::ControlOptimizer;
 using pbve::ControlOptions;
 using pbve::GradientMode;
 
-constexpr int kFirst = 24, kLast = 29;
+constexpr int kFirst = 24;
+const int kLast = std::max(kFirst, std::getenv("LAST") ? std::atoi(std::getenv("LAST")) : 29);
 
 pbve::test::ClothScene make_scene() {
   pbve::test::ClothScene scene(36, 27);
