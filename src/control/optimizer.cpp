@@ -469,7 +469,6 @@ class WindowProblem {
       for (int v : ball) claim[static_cast<size_t>(v)].push_back(a);
     }
   }
-  int colours() const { return static_cast<int>(m_colours.size()); }
   // Numbers response() holds at its peak: the responses and the probes' positions.
   double response_numbers() const {
     const double nvtx = static_cast<double>(m_layout.vertex_block.size());
@@ -481,7 +480,7 @@ class WindowProblem {
 
   // The response of the surface positions after frame 0 to every variable of that frame at
   // its controls u0, by central differences over the probe groups: per variable, the rows of
-  // its unit's ball (compressed) or #V rows. 2 * colours() * m_group simulations.
+  // its unit's ball (compressed) or #V rows. 2 * #colours * m_group simulations.
   std::vector<Vertices> response(const Eigen::VectorXd& u0, bool parallel) {
     const int probes = static_cast<int>(m_colours.size()) * m_group;
     const double h = m_options.fd_step;
@@ -1017,7 +1016,8 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
       if (is_free[static_cast<size_t>(b)]) blocks.push_back(b);
   }
   problem.set_active(blocks);
-  problem.set_probe_groups(m_adjacency, m_options.difference_rings);
+  problem.set_probe_groups(m_adjacency,
+                           resolved == GradientMode::compressed ? m_options.difference_rings : -1);
   problem.set_fixed(uu);
   const Eigen::VectorXd z = problem.to_z(uu);
   Eigen::VectorXd gz(z.size());
