@@ -64,18 +64,21 @@ void BM_ClothStep(benchmark::State& state) {
   const pbve::SimState s0 = sim.save();
   pbve::StepInput in;
   in.control = Eigen::VectorXd::Constant(3 * sim.num_vertices(), 1e-5);
-  double cg = 0, newton = 0, fact = 0;
+  double cg = 0, newton = 0, fact = 0, curvature = 0;
   for (auto _ : state) {
     sim.restore(s0);
     sim.step(in);
     cg += sim.last_stats().cg_iterations;
     newton += sim.last_stats().newton_iterations;
     fact += sim.last_stats().factorizations;
+    curvature += sim.last_stats().curvature_steps;
   }
   state.counters["vertices"] = sim.num_vertices();
   state.counters["cg_iters"] = benchmark::Counter(cg, benchmark::Counter::kAvgIterations);
   state.counters["newton_iters"] = benchmark::Counter(newton, benchmark::Counter::kAvgIterations);
   state.counters["factorizations"] = benchmark::Counter(fact, benchmark::Counter::kAvgIterations);
+  state.counters["curvature_steps"] =
+      benchmark::Counter(curvature, benchmark::Counter::kAvgIterations);
 }
 
 // step_vjp right after the step it differentiates (the recorded trajectory is reused: the
@@ -177,18 +180,21 @@ void BM_BoardStep(benchmark::State& state) {
   Board b = make_board(static_cast<int>(state.range(0)));
   const pbve::SimState s0 = b.sim->save();
   const pbve::StepInput in = b.input(b.frame);
-  double cg = 0, newton = 0, fact = 0;
+  double cg = 0, newton = 0, fact = 0, curvature = 0;
   for (auto _ : state) {
     b.sim->restore(s0);
     b.sim->step(in);
     cg += b.sim->last_stats().cg_iterations;
     newton += b.sim->last_stats().newton_iterations;
     fact += b.sim->last_stats().factorizations;
+    curvature += b.sim->last_stats().curvature_steps;
   }
   state.counters["vertices"] = b.sim->num_vertices();
   state.counters["cg_iters"] = benchmark::Counter(cg, benchmark::Counter::kAvgIterations);
   state.counters["newton_iters"] = benchmark::Counter(newton, benchmark::Counter::kAvgIterations);
   state.counters["factorizations"] = benchmark::Counter(fact, benchmark::Counter::kAvgIterations);
+  state.counters["curvature_steps"] =
+      benchmark::Counter(curvature, benchmark::Counter::kAvgIterations);
 }
 
 // step_vjp right after the step (trajectory reused).

@@ -5,6 +5,7 @@
 #include <cstring>
 #include <numeric>
 #include <optional>
+#include <random>
 #include <stdexcept>
 #include <string>
 
@@ -205,6 +206,14 @@ struct MassSpringSimulator::Impl {
   // that needs more than this has met an indefinite or ill-posed matrix.
   static constexpr int max_multigrid_iterations = 200;
   int last_reuse_iterations = 0;
+  // Set by pcg() when it meets a search direction p of non-positive curvature p^T J p: p and
+  // that curvature (a certificate that J is not positive definite).
+  bool curvature_found = false;
+  VectorXd curvature_direction;
+  double curvature = 0.0;
+  // Negative curvature steps per substep at most (Newton then continues on the projected
+  // Hessian).
+  static constexpr int max_curvature_steps = 4;
   int solves_in_call = 0;               // linear_solve() calls since begin_call()
   std::vector<Matrix3d> precond;        // inverse diagonal blocks (iterative solver)
   detail::Multigrid multigrid;          // LinearSolver::multigrid: set up per solve
@@ -514,7 +523,14 @@ struct MassSpringSimulator::Impl {
     for (int it = 0; it < max_iterations; ++it) {
       multiply(p, Ap);
       const double pAp = p.dot(Ap);
-      if (!(pAp > 0.0)) return false;
+      if (!(pAp > 0.0)) {
+        if (pAp <= 0.0) {
+          curvature_found = true;
+          curvature_direction = p;
+          curvature = pAp;
+        }
+        return false;
+      }
       const double a = rz / pAp;
       xout += a * p;
       r -= a * Ap;
@@ -606,6 +622,8 @@ struct MassSpringSimulator::Impl {
     const bool first_base = first && !in_adjoint;
     if (first_base && exact && active == &base && base.projected) return false;
     if (active && last_reuse_iterations <= refactor_iterations && cg()) return true;
+    // Conjugate gradients met negative curvature: J is indefinite, and factorizing fails.
+    if (exact && curvature_found) return false;
     Solver& slot = base.valid || in_adjoint ? work : base;
     const bool ok = factorize(slot);
     if (first_base && &slot == &base) base.projected = !ok && exact;
@@ -736,6 +754,46 @@ struct MassSpringSimulator::Impl {
     return f;
   }
 
+  // Entries uniform in [-1, 1], the same for every call with that size.
+  static VectorXd probe_vector(Eigen::Index n) {
+    std::mt19937 gen(12345);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    VectorXd out(n);
+    for (Eigen::Index i = 0; i < n; ++i) out[i] = u(gen);
+    return out;
+  }
+
+  // Moves y along the direction of negative curvature that the last exact solve met
+  // (curvature_direction, curvature; free rows), its sign chosen downhill for the gradient at
+  // y: from a largest node displacement of a quarter edge length, halved until the incremental
+  // potential falls by at least a tenth of its quadratic model's decrease a g.d + a^2 d^T J d / 2
+  // (both terms <= 0). Returns false (y unchanged) if no such length above 1/4096 of an edge
+  // was found.
+  bool curvature_step(const VectorXd& xn, const VectorXd& vn, const Lag& lag, double h, VectorXd& y,
+                      VectorXd& trial) const {
+    const Model& m = *model;
+    const double scale = curvature_direction.lpNorm<Eigen::Infinity>();
+    if (!(scale > 0.0)) return false;
+    residual(y, xn, vn, lag, h, trial);
+    const VectorXd g = gather_free(trial);
+    const double sign = g.dot(curvature_direction) > 0.0 ? -1.0 / scale : 1.0 / scale;
+    const double slope = sign * g.dot(curvature_direction);  // per metre of the largest move
+    const double bend = curvature / (scale * scale);
+    const double e0 = potential(y, xn, vn, lag, h);
+    double a = 0.25 * m.char_length;
+    for (int ls = 0; ls < 12; ++ls, a *= 0.5) {
+      trial = y;
+      for (size_t k = 0; k < m.free_nodes.size(); ++k)
+        trial.segment<3>(3 * m.free_nodes[k]) +=
+            (a * sign) * curvature_direction.segment<3>(3 * static_cast<Eigen::Index>(k));
+      if (potential(trial, xn, vn, lag, h) - e0 <= 0.1 * (a * slope + 0.5 * a * a * bend)) {
+        y.swap(trial);
+        return true;
+      }
+    }
+    return false;
+  }
+
   // One backward Euler substep from (xn, vn) with anchors moved to ya (3 * #anchors); writes
   // y. Returns Newton iterations (negative when not converged).
   int substep(const VectorXd& xn, const VectorXd& vn, const VectorXd& ya, const Lag& lag, double h,
@@ -749,6 +807,7 @@ struct MassSpringSimulator::Impl {
     const double tol = P().newton_tolerance * m.char_length;
     VectorXd r, dy_free, trial;
     bool exact = true;
+    int curvature_steps = 0;
     for (int it = 1; it <= P().newton_iterations; ++it) {
       residual(y, xn, vn, lag, h, r);
       const VectorXd rf = gather_free(r);
@@ -758,18 +817,38 @@ struct MassSpringSimulator::Impl {
       const double target = std::max(forcing * mass_scaled_inf(rf), 0.1 * tol);
       auto stop = [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; };
       // The exact Hessian while conjugate gradients find it positive definite (quadratic
-      // convergence; the solution is then a descent direction), else, for the rest of the
-      // substep, the one with compressed springs' negative transverse stiffness dropped
-      // (positive semi-definite springs: always a descent direction, linear convergence).
+      // convergence; the solution is then a descent direction), else the one with compressed
+      // springs' negative transverse stiffness dropped (positive semi-definite springs: always
+      // a descent direction, linear convergence) and a step along the negative curvature met,
+      // after which the exact Hessian is tried again (at most max_curvature_steps times per
+      // substep; then the projected one for the rest of it).
       bool solved = false;
+      const bool tried_exact = exact;
+      bool negative = false;  // conjugate gradients met negative curvature of the exact Hessian
       if (exact) {
         assemble(y, lag, h, true);
+        curvature_found = false;
         solved = linear_solve(rf, dy_free, stop, true);
+        negative = !solved && curvature_found && curvature < 0.0;
         exact = solved;
       }
       if (!solved) {
         assemble(y, lag, h, false);
         if (!linear_solve(rf, dy_free, stop) && !use_block_jacobi()) return -it;
+      }
+      if (tried_exact && !solved && !negative && use_direct() && active) {
+        // The exact matrix failed to factorize, which gives no direction: look for one with
+        // conjugate gradients on it, preconditioned by the factorization just used, from a
+        // fixed pseudo-random right side (the residual of a symmetric configuration may have no
+        // component along the negative curvature that would break its symmetry).
+        assemble(y, lag, h, true);
+        curvature_found = false;
+        VectorXd unused;
+        pcg(
+            probe_vector(rf.size()), unused,
+            [this](const VectorXd& in, VectorXd& out) { active->chol.solve(in, out); },
+            [](const VectorXd&) { return false; }, max_reuse_iterations);
+        negative = curvature_found && curvature < 0.0;
       }
       dy_free = -dy_free;
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
@@ -791,6 +870,17 @@ struct MassSpringSimulator::Impl {
       for (size_t k = 0; k < m.free_nodes.size(); ++k)
         y.segment<3>(3 * m.free_nodes[k]) +=
             t * dy_free.segment<3>(3 * static_cast<Eigen::Index>(k));
+      // A stationary point where the exact Hessian has negative curvature is a saddle of the
+      // incremental potential, not a backward Euler step (e.g. a symmetric sheet under
+      // compression, whose symmetry the projected Hessian keeps): leave it along that curvature,
+      // then try the exact Hessian again.
+      if (negative && curvature_steps < max_curvature_steps &&
+          curvature_step(xn, vn, lag, h, y, trial)) {
+        ++curvature_steps;
+        ++stats.curvature_steps;
+        exact = true;
+        continue;
+      }
       if (t == 1.0 && step_inf <= tol) return it;
     }
     return -P().newton_iterations;

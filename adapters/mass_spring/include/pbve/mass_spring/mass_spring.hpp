@@ -9,8 +9,10 @@
 /// length h solves the backward Euler equations
 /// \f[ M(v' - v) = h\,(f_{int}(x') + f_c(x') - C(x) v' + m g + u),\quad x' = x + h v' \f]
 /// for x' with Newton's method (line search, tolerance Params::newton_tolerance; the exact
-/// Hessian while it is positive definite, else, for the rest of the substep, the Hessian with
-/// the negative stiffness of compressed springs across their axis dropped), where
+/// Hessian while it is positive definite, else the Hessian with the negative stiffness of
+/// compressed springs across their axis dropped, plus a step along the negative curvature of
+/// the exact Hessian, after which the exact one is tried again: so Newton ends at a minimum of
+/// the incremental potential, not on a saddle of it), where
 /// K(x) in the damping term is the axial spring stiffness \f$\sum_s k_s u_s u_s^T\f$ (the exact
 /// stiffness at rest, always positive semi-definite) evaluated at the start of the substep;
 /// its position derivative is part of the adjoint, so step_vjp() is exact.
@@ -183,6 +185,7 @@ struct StepStats {
   int factorizations = 0;         ///< sparse factorizations summed over substeps
   int cg_iterations = 0;          ///< conjugate gradient iterations summed over substeps
   int max_newton_iterations = 0;  ///< largest per-substep count
+  int curvature_steps = 0;        ///< steps along negative curvature (leaving saddles)
   bool converged = true;          ///< every substep reached the tolerance
 };
 
