@@ -432,8 +432,6 @@ TEST(MassSpringSolvers, ACompressedClothStepsTheSameWhetherItsFactorizationIsKep
   EXPECT_TRUE(bit_equal(fresh_base->positions(), kept_positions));
 }
 
-}  // namespace
-
 TEST(MassSpringSolvers, NewtonLeavesSaddlesAlongNegativeCurvature) {
   // A 16 x 16 cloth of 1 m, horizontal, held at two neighbouring corners and falling: from the
   // fifth step on (one substep each) the exact Hessian is indefinite near the solution. Newton
@@ -474,3 +472,5 @@ TEST(MassSpringSolvers, NewtonLeavesSaddlesAlongNegativeCurvature) {
   }
   for (size_t s = 0; s < sims.size(); ++s) EXPECT_GE(curvature_steps[s], 1) << "solver " << s;
 }
+
+}  // namespace

@@ -2,10 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
+#include <limits>
 #include <numeric>
 #include <optional>
-#include <random>
 #include <stdexcept>
 #include <string>
 
@@ -211,9 +212,6 @@ struct MassSpringSimulator::Impl {
   bool curvature_found = false;
   VectorXd curvature_direction;
   double curvature = 0.0;
-  // Negative curvature steps per substep at most (Newton then continues on the projected
-  // Hessian).
-  static constexpr int max_curvature_steps = 4;
   int solves_in_call = 0;               // linear_solve() calls since begin_call()
   std::vector<Matrix3d> precond;        // inverse diagonal blocks (iterative solver)
   detail::Multigrid multigrid;          // LinearSolver::multigrid: set up per solve
@@ -587,7 +585,8 @@ struct MassSpringSimulator::Impl {
   // `exact`: J holds the exact Hessian, which may be indefinite. A step's first solve factorizes
   // it into `base` when `base` is not kept; if that fails, `base` then holds the projected matrix
   // (`projected`), and a call reusing that `base` fails its first exact solve the same way
-  // without factorizing, so that it takes the same path.
+  // without factorizing, so that it takes the same path. An exact solve whose CG met negative
+  // curvature (curvature_found) returns false without factorizing: J is indefinite.
   template <class Stop>
   bool linear_solve(const VectorXd& b, VectorXd& xout, Stop stop, bool exact = false) {
     const bool first = solves_in_call++ == 0;
@@ -754,39 +753,48 @@ struct MassSpringSimulator::Impl {
     return f;
   }
 
-  // Entries uniform in [-1, 1], the same for every call with that size.
+  // Entries in [-1, 1) from the splitmix64 sequence of a fixed seed: the same for every call
+  // with that size, on every platform.
   static VectorXd probe_vector(Eigen::Index n) {
-    std::mt19937 gen(12345);
-    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    std::uint64_t state = 0x9e3779b97f4a7c15ULL;
     VectorXd out(n);
-    for (Eigen::Index i = 0; i < n; ++i) out[i] = u(gen);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      std::uint64_t z = (state += 0x9e3779b97f4a7c15ULL);
+      z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+      z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+      z ^= z >> 31;
+      out[i] = static_cast<double>(z >> 11) * 0x1.0p-52 - 1.0;
+    }
     return out;
   }
 
-  // Moves y along the direction of negative curvature that the last exact solve met
-  // (curvature_direction, curvature; free rows), its sign chosen downhill for the gradient at
-  // y: from a largest node displacement of a quarter edge length, halved until the incremental
-  // potential falls by at least a tenth of its quadratic model's decrease a g.d + a^2 d^T J d / 2
-  // (both terms <= 0). Returns false (y unchanged) if no such length above 1/4096 of an edge
-  // was found.
-  bool curvature_step(const VectorXd& xn, const VectorXd& vn, const Lag& lag, double h, VectorXd& y,
-                      VectorXd& trial) const {
+  // Moves y along a direction d of negative curvature c = d^T J d < 0 of the exact Hessian J
+  // (free rows), met by conjugate gradients at the start of this Newton iteration (before its
+  // projected step, so c is the curvature there). The sign of d is chosen downhill for the
+  // gradient g at y. Lengths are tried from a largest coordinate move of a quarter edge,
+  // halved down to 1/8192 of an edge, until the incremental potential falls by at least a
+  // tenth of the decrease a g.d + a^2 c / 2 (both terms <= 0) that its quadratic model
+  // predicts, and by more than its own rounding. Returns false (y unchanged) if none does.
+  bool curvature_step(const VectorXd& d, double c, const VectorXd& xn, const VectorXd& vn,
+                      const Lag& lag, double h, VectorXd& y, VectorXd& trial) const {
     const Model& m = *model;
-    const double scale = curvature_direction.lpNorm<Eigen::Infinity>();
-    if (!(scale > 0.0)) return false;
+    const double scale = d.lpNorm<Eigen::Infinity>();
+    if (!(scale > 0.0) || !(c < 0.0)) return false;
     residual(y, xn, vn, lag, h, trial);
     const VectorXd g = gather_free(trial);
-    const double sign = g.dot(curvature_direction) > 0.0 ? -1.0 / scale : 1.0 / scale;
-    const double slope = sign * g.dot(curvature_direction);  // per metre of the largest move
-    const double bend = curvature / (scale * scale);
+    const double sign = g.dot(d) > 0.0 ? -1.0 / scale : 1.0 / scale;
+    const double slope = sign * g.dot(d);  // per metre of the largest coordinate move
+    const double bend = c / (scale * scale);
     const double e0 = potential(y, xn, vn, lag, h);
+    const double noise = 1e3 * std::numeric_limits<double>::epsilon() * std::abs(e0);
     double a = 0.25 * m.char_length;
     for (int ls = 0; ls < 12; ++ls, a *= 0.5) {
       trial = y;
       for (size_t k = 0; k < m.free_nodes.size(); ++k)
         trial.segment<3>(3 * m.free_nodes[k]) +=
-            (a * sign) * curvature_direction.segment<3>(3 * static_cast<Eigen::Index>(k));
-      if (potential(trial, xn, vn, lag, h) - e0 <= 0.1 * (a * slope + 0.5 * a * a * bend)) {
+            (a * sign) * d.segment<3>(3 * static_cast<Eigen::Index>(k));
+      const double de = potential(trial, xn, vn, lag, h) - e0;
+      if (de <= 0.1 * (a * slope + 0.5 * a * a * bend) && de < -noise) {
         y.swap(trial);
         return true;
       }
@@ -807,7 +815,6 @@ struct MassSpringSimulator::Impl {
     const double tol = P().newton_tolerance * m.char_length;
     VectorXd r, dy_free, trial;
     bool exact = true;
-    int curvature_steps = 0;
     for (int it = 1; it <= P().newton_iterations; ++it) {
       residual(y, xn, vn, lag, h, r);
       const VectorXd rf = gather_free(r);
@@ -820,16 +827,23 @@ struct MassSpringSimulator::Impl {
       // convergence; the solution is then a descent direction), else the one with compressed
       // springs' negative transverse stiffness dropped (positive semi-definite springs: always
       // a descent direction, linear convergence) and a step along the negative curvature met,
-      // after which the exact Hessian is tried again (at most max_curvature_steps times per
-      // substep; then the projected one for the rest of it).
+      // after which the exact Hessian is tried again (if no such step lowers the potential, the
+      // projected Hessian for the rest of the substep).
       bool solved = false;
       const bool tried_exact = exact;
-      bool negative = false;  // conjugate gradients met negative curvature of the exact Hessian
+      // A direction of negative curvature of the exact Hessian that conjugate gradients met.
+      bool negative = false;
+      VectorXd direction;
+      double direction_curvature = 0.0;
       if (exact) {
         assemble(y, lag, h, true);
         curvature_found = false;
         solved = linear_solve(rf, dy_free, stop, true);
         negative = !solved && curvature_found && curvature < 0.0;
+        if (negative) {
+          direction.swap(curvature_direction);
+          direction_curvature = curvature;
+        }
         exact = solved;
       }
       if (!solved) {
@@ -849,6 +863,10 @@ struct MassSpringSimulator::Impl {
             [this](const VectorXd& in, VectorXd& out) { active->chol.solve(in, out); },
             [](const VectorXd&) { return false; }, max_reuse_iterations);
         negative = curvature_found && curvature < 0.0;
+        if (negative) {
+          direction.swap(curvature_direction);
+          direction_curvature = curvature;
+        }
       }
       dy_free = -dy_free;
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
@@ -870,13 +888,12 @@ struct MassSpringSimulator::Impl {
       for (size_t k = 0; k < m.free_nodes.size(); ++k)
         y.segment<3>(3 * m.free_nodes[k]) +=
             t * dy_free.segment<3>(3 * static_cast<Eigen::Index>(k));
-      // A stationary point where the exact Hessian has negative curvature is a saddle of the
-      // incremental potential, not a backward Euler step (e.g. a symmetric sheet under
-      // compression, whose symmetry the projected Hessian keeps): leave it along that curvature,
-      // then try the exact Hessian again.
-      if (negative && curvature_steps < max_curvature_steps &&
-          curvature_step(xn, vn, lag, h, y, trial)) {
-        ++curvature_steps;
+      // Projected Newton converges to a stationary point, which where the exact Hessian has
+      // negative curvature is a saddle of the incremental potential, not a backward Euler step
+      // (e.g. a symmetric sheet under compression, whose symmetry the projected Hessian keeps):
+      // step along that curvature too, then try the exact Hessian again. Each such step lowers
+      // the potential; the iteration limit bounds their number.
+      if (negative && curvature_step(direction, direction_curvature, xn, vn, lag, h, y, trial)) {
         ++stats.curvature_steps;
         exact = true;
         continue;

@@ -11,8 +11,12 @@
 /// for x' with Newton's method (line search, tolerance Params::newton_tolerance; the exact
 /// Hessian while it is positive definite, else the Hessian with the negative stiffness of
 /// compressed springs across their axis dropped, plus a step along the negative curvature of
-/// the exact Hessian, after which the exact one is tried again: so Newton ends at a minimum of
-/// the incremental potential, not on a saddle of it), where
+/// the exact Hessian that conjugate gradients met, after which the exact one is tried again:
+/// Newton on the projected Hessian alone would converge, slowly, to a saddle of the incremental
+/// potential where a symmetric configuration puts one. Conjugate gradients see only the
+/// directions that their right sides reach, so an exactly symmetric configuration, e.g. a
+/// perfectly flat sheet compressed in its plane, may stay on its saddle with the iterative and
+/// multigrid solvers; the direct solver probes with a pseudo-random right side), where
 /// K(x) in the damping term is the axial spring stiffness \f$\sum_s k_s u_s u_s^T\f$ (the exact
 /// stiffness at rest, always positive semi-definite) evaluated at the start of the substep;
 /// its position derivative is part of the adjoint, so step_vjp() is exact.
