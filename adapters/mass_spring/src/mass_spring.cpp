@@ -832,18 +832,21 @@ struct MassSpringSimulator::Impl {
       bool solved = false;
       const bool tried_exact = exact;
       // A direction of negative curvature of the exact Hessian that conjugate gradients met.
+      // Taken from pcg()'s record right after the solve that met it.
       bool negative = false;
       VectorXd direction;
       double direction_curvature = 0.0;
+      auto take_curvature = [&] {
+        if (!curvature_found || !(curvature < 0.0)) return false;
+        direction.swap(curvature_direction);
+        direction_curvature = curvature;
+        return true;
+      };
       if (exact) {
         assemble(y, lag, h, true);
         curvature_found = false;
         solved = linear_solve(rf, dy_free, stop, true);
-        negative = !solved && curvature_found && curvature < 0.0;
-        if (negative) {
-          direction.swap(curvature_direction);
-          direction_curvature = curvature;
-        }
+        negative = !solved && take_curvature();
         exact = solved;
       }
       if (!solved) {
@@ -862,11 +865,7 @@ struct MassSpringSimulator::Impl {
             probe_vector(rf.size()), unused,
             [this](const VectorXd& in, VectorXd& out) { active->chol.solve(in, out); },
             [](const VectorXd&) { return false; }, max_reuse_iterations);
-        negative = curvature_found && curvature < 0.0;
-        if (negative) {
-          direction.swap(curvature_direction);
-          direction_curvature = curvature;
-        }
+        negative = take_curvature();
       }
       dy_free = -dy_free;
       const double step_inf = dy_free.lpNorm<Eigen::Infinity>();
