@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <numeric>
@@ -18,6 +17,7 @@
 #include "factor.hpp"
 #include "model.hpp"
 #include "pbve/core/thin_sheet.hpp"
+#include "pseudo_random.hpp"
 
 namespace pbve::mass_spring {
 
@@ -753,21 +753,6 @@ struct MassSpringSimulator::Impl {
     return f;
   }
 
-  // Entries in [-1, 1) from the splitmix64 sequence of a fixed seed: the same for every call
-  // with that size, on every platform.
-  static VectorXd probe_vector(Eigen::Index n) {
-    std::uint64_t state = 0x9e3779b97f4a7c15ULL;
-    VectorXd out(n);
-    for (Eigen::Index i = 0; i < n; ++i) {
-      std::uint64_t z = (state += 0x9e3779b97f4a7c15ULL);
-      z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-      z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-      z ^= z >> 31;
-      out[i] = static_cast<double>(z >> 11) * 0x1.0p-52 - 1.0;
-    }
-    return out;
-  }
-
   // Moves y along a direction d of negative curvature c = d^T J d < 0 of the exact Hessian J
   // (free rows), met by conjugate gradients at the start of this Newton iteration (before its
   // projected step, so c is the curvature there). The sign of d is chosen downhill for the
@@ -875,7 +860,7 @@ struct MassSpringSimulator::Impl {
         curvature_found = false;
         VectorXd unused;
         pcg(
-            probe_vector(rf.size()), unused,
+            detail::pseudo_random_vector(rf.size()), unused,
             [this](const VectorXd& in, VectorXd& out) { active->chol.solve(in, out); },
             [](const VectorXd&) { return false; }, max_reuse_iterations);
         negative = take_curvature();

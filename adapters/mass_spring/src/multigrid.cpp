@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstdint>
 #include <stdexcept>
 
 #include <Eigen/LU>
@@ -11,6 +10,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
+
+#include "pseudo_random.hpp"
 
 namespace pbve::mass_spring::detail {
 
@@ -47,19 +48,16 @@ constexpr int spectral_iterations = 30;
 // has not converged or the graph has no edge.
 double laplacian_radius(const std::vector<std::vector<std::pair<int, double>>>& strong) {
   const size_t n = strong.size();
-  std::vector<double> v(n), w(n), d(n, 0.0);
-  std::uint64_t state = 0x9e3779b97f4a7c15ULL;
-  for (size_t i = 0; i < n; ++i) {
+  VectorXd v = pseudo_random_vector(static_cast<Eigen::Index>(n));
+  std::vector<double> w(n), d(n, 0.0);
+  for (size_t i = 0; i < n; ++i)
     for (const auto& e : strong[i]) d[i] += e.second;
-    state = state * 6364136223846793005ULL + 1442695040888963407ULL;
-    v[i] = static_cast<double>(state >> 11) * 0x1.0p-53 - 0.5;
-  }
   double rho = 0.0;
   for (int it = 0; it < spectral_iterations; ++it) {
     double vv = 0.0, ww = 0.0;
     for (size_t i = 0; i < n; ++i) {
       double acc = 0.0;
-      for (const auto& e : strong[i]) acc += e.second * v[static_cast<size_t>(e.first)];
+      for (const auto& e : strong[i]) acc += e.second * v[e.first];
       w[i] = d[i] > 0.0 ? v[i] - acc / d[i] : 0.0;
       vv += v[i] * v[i];
       ww += w[i] * w[i];
