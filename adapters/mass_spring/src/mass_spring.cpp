@@ -405,42 +405,49 @@ struct MassSpringSimulator::Impl {
     const Model& m = *model;
     if (J.size() == 0) J = m.pattern;
     double* val = J.valuePtr();
-    std::fill(val, val + J.nonZeros(), 0.0);
-    auto add = [val](const std::array<int, 3>& off, const Matrix3d& B, double sign) {
+    const int* outer = J.outerIndexPtr();
+    auto add = [val](const int* off, const Matrix3d& B, double sign) {
       for (int j = 0; j < 3; ++j)
-        for (int i = 0; i < 3; ++i) val[off[static_cast<size_t>(j)] + i] += sign * B(i, j);
+        for (int i = 0; i < 3; ++i) val[off[j] + i] += sign * B(i, j);
     };
-    for (size_t f = 0; f < m.free_nodes.size(); ++f)
-      add(m.diag_offset[f], node_block(m.free_nodes[f], y, lag, h), 1.0);
-    // The spring blocks (in parallel on large models), then their sums in spring order.
+    const bool parallel = m.springs.size() >= parallel_springs;
+    // The spring blocks (in parallel on large models), then each block column on its own: the
+    // node's block plus its springs' blocks in spring order on the diagonal, minus each spring's
+    // block off it. The sums are those of a pass over the springs in order, so the result does
+    // not depend on the threads.
     spring_blocks.resize(m.springs.size());
-    auto compute = [&](size_t s) {
-      const Spring& sp = m.springs[s];
-      spring_blocks[s] = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
-                                      lag.dir[s], h, P().damping_beta, exact);
-    };
-    if (m.springs.size() < parallel_springs) {
-      for (size_t s = 0; s < m.springs.size(); ++s) compute(s);
-    } else {
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, m.springs.size(), 4096),
-                        [&](const tbb::blocked_range<size_t>& r) {
-                          for (size_t s = r.begin(); s != r.end(); ++s) compute(s);
-                        });
-    }
-    for (size_t s = 0; s < m.springs.size(); ++s) {
-      const Spring& sp = m.springs[s];
-      const int fa = m.free_index[static_cast<size_t>(sp.a)];
-      const int fb = m.free_index[static_cast<size_t>(sp.b)];
-      if (fa < 0 && fb < 0) continue;
-      const Matrix3d& B = spring_blocks[s];
-      if (fa >= 0) add(m.diag_offset[static_cast<size_t>(fa)], B, 1.0);
-      if (fb >= 0) add(m.diag_offset[static_cast<size_t>(fb)], B, 1.0);
-      if (fa >= 0 && fb >= 0) {
-        const auto& o = m.spring_offset[s];
-        add({o[0], o[1], o[2]}, B, -1.0);
-        add({o[3], o[4], o[5]}, B, -1.0);
+    auto springs = [&](size_t begin, size_t end) {
+      for (size_t s = begin; s != end; ++s) {
+        const Spring& sp = m.springs[s];
+        spring_blocks[s] = spring_block(sp, y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a),
+                                        lag.dir[s], h, P().damping_beta, exact);
       }
+    };
+    auto columns = [&](size_t begin, size_t end) {
+      for (size_t f = begin; f != end; ++f) {
+        std::fill(val + outer[3 * f], val + outer[3 * f + 3], 0.0);
+        const int* diag = m.diag_offset[f].data();
+        add(diag, node_block(m.free_nodes[f], y, lag, h), 1.0);
+        for (int k = m.incident_start[f]; k < m.incident_start[f + 1]; ++k) {
+          const auto s = static_cast<size_t>(m.incident_spring[static_cast<size_t>(k)]);
+          const Matrix3d& B = spring_blocks[s];
+          add(diag, B, 1.0);
+          const int column = m.incident_column[static_cast<size_t>(k)];
+          if (column >= 0) add(m.spring_offset[s].data() + column, B, -1.0);
+        }
+      }
+    };
+    if (!parallel) {
+      springs(0, m.springs.size());
+      columns(0, m.free_nodes.size());
+      return;
     }
+    auto in_parallel = [](size_t n, size_t grain, auto f) {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
+                        [&](const tbb::blocked_range<size_t>& r) { f(r.begin(), r.end()); });
+    };
+    in_parallel(m.springs.size(), 4096, springs);
+    in_parallel(m.free_nodes.size(), 1024, columns);
   }
 
   bool use_direct() const {

@@ -429,6 +429,32 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
           (fa >= 0 && fb >= 0) ? offset(fb, fa, j) : -1;
     }
   }
+  m.incident_start.assign(static_cast<size_t>(nf) + 1, 0);
+  for (const Spring& sp : m.springs)
+    for (int end : {sp.a, sp.b}) {
+      const int f = m.free_index[static_cast<size_t>(end)];
+      if (f >= 0) ++m.incident_start[static_cast<size_t>(f) + 1];
+    }
+  for (int f = 0; f < nf; ++f)
+    m.incident_start[static_cast<size_t>(f) + 1] += m.incident_start[static_cast<size_t>(f)];
+  m.incident_spring.resize(static_cast<size_t>(m.incident_start.back()));
+  m.incident_column.resize(m.incident_spring.size());
+  std::vector<int> fill(m.incident_start.begin(), m.incident_start.end() - 1);
+  for (size_t s = 0; s < m.springs.size(); ++s) {
+    const int fa = m.free_index[static_cast<size_t>(m.springs[s].a)];
+    const int fb = m.free_index[static_cast<size_t>(m.springs[s].b)];
+    // Block (fb, fa) lies in fa's columns (spring_offset[3..5]), block (fa, fb) in fb's.
+    if (fa >= 0) {
+      const auto k = static_cast<size_t>(fill[static_cast<size_t>(fa)]++);
+      m.incident_spring[k] = static_cast<int>(s);
+      m.incident_column[k] = fb >= 0 ? 3 : -1;
+    }
+    if (fb >= 0) {
+      const auto k = static_cast<size_t>(fill[static_cast<size_t>(fb)]++);
+      m.incident_spring[k] = static_cast<int>(s);
+      m.incident_column[k] = fa >= 0 ? 0 : -1;
+    }
+  }
   return m;
 }
 

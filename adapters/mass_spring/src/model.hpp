@@ -45,6 +45,11 @@ struct Model {
   // (-1 when an end is anchored).
   std::vector<std::array<int, 3>> diag_offset;
   std::vector<std::array<int, 6>> spring_offset;
+  // Per free block f, the springs with an end at f in increasing spring order: entries
+  // incident_start[f] .. incident_start[f + 1] - 1 of incident_spring, and incident_column[k],
+  // the index (0 or 3) into the spring's spring_offset of its off-diagonal block in f's columns
+  // (-1 when the other end is anchored). Lets each block column be assembled on its own.
+  std::vector<int> incident_start, incident_spring, incident_column;
   // Symbolic analysis of `pattern` for the sparse Cholesky factorizations, made on first use
   // and shared by every clone.
   std::shared_ptr<SharedCholeskyAnalysis> cholesky = std::make_shared<SharedCholeskyAnalysis>();
