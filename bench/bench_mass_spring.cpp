@@ -256,7 +256,15 @@ void BM_BoardLinearJvpVjp(benchmark::State& state) {
 
 }  // namespace
 
-BENCHMARK(BM_ClothStep)->Arg(22)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ClothStep)
+    ->Arg(8)
+    ->Arg(12)
+    ->Arg(16)
+    ->Arg(22)
+    ->Arg(32)
+    ->Arg(64)
+    ->Arg(128)
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjp)->Arg(22)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjpReplay)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
 // Board targets: 0 = example 1's own refinement (5 cm edges, 494 vertices); 1000, 4000, 16000

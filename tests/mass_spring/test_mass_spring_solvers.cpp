@@ -402,6 +402,27 @@ TEST(MassSpringSolvers, AStepDoesNotDependOnTheThreadCount) {
   EXPECT_GT((two - pbve::Vertices(mesh.vertices)).cwiseAbs().maxCoeff(), 1e-3);
 }
 
+TEST(MassSpringSolvers, TheAutomaticChoiceFactorizesOnlyUpToItsLimit) {
+  // LinearSolver::automatic factorizes up to direct_solver_max_dofs free unknowns (300 by
+  // default) and runs multigrid-preconditioned CG above, which never factorizes a Newton matrix
+  // of a cloth step (its coarsest level is dense and not counted).
+  auto factorizations = [](int n, int max_dofs) {
+    Params p = Params::preset(Material::cloth);
+    if (max_dofs >= 0) p.direct_solver_max_dofs = max_dofs;
+    MassSpringSimulator sim(pbve::test::grid_mesh(n, 0.5), {0, n - 1}, p);
+    sim.step(StepInput{});
+    EXPECT_TRUE(sim.last_stats().converged) << n << " x " << n;
+    EXPECT_GT(sim.last_stats().newton_iterations, 0) << n << " x " << n;
+    return sim.last_stats().factorizations;
+  };
+  // 8 x 8 nodes, two anchored: 186 free unknowns; 12 x 12: 426.
+  EXPECT_GT(factorizations(8, -1), 0);
+  EXPECT_EQ(factorizations(12, -1), 0);
+  EXPECT_GT(factorizations(12, 426), 0);
+  EXPECT_EQ(factorizations(12, 425), 0);
+  EXPECT_EQ(factorizations(8, 0), 0);
+}
+
 TEST(MassSpringSolvers, FreshInstancesStepIdentically) {
   // Two simulators built separately (each its own symbolic analysis, AMD or METIS ordering)
   // give the same bits.

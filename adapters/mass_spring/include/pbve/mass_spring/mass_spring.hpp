@@ -159,14 +159,17 @@ struct Params {
   /// Linear solver choice.
   LinearSolver linear_solver = LinearSolver::automatic;
   /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node)
-  /// and the multigrid solver above; 0 means multigrid always. The direct solver's cost grows
-  /// about as n^1.5 (docs/benchmarks.md, mass_spring), the multigrid solver's about linearly
-  /// (it is about as fast on example 1's tied two-layer board); on a plain cloth multigrid is
-  /// the faster from a few hundred vertices (set 0 there).
-  int direct_solver_max_dofs = 60000;
-  /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0):
-  /// there block-Jacobi CG needs thousands of iterations per solve, and factorizing is 5-7x
-  /// faster at 838 and 3 022 vertices (example 1's board; docs/benchmarks.md).
+  /// and the multigrid solver above; 0 means multigrid always. Up to 96 free nodes the
+  /// multigrid is one dense LL^T, slower than the sparse one (4.4x at 64 cloth vertices); from
+  /// 144 vertices on it is the faster, by 1.5x there, 1.8x at 1k, 4x at 4k and 7x at 16k on a
+  /// plain cloth (the direct solver's cost grows about as n^1.5, the multigrid's about
+  /// linearly; docs/benchmarks.md, mass_spring), and on example 1's board and example 2's
+  /// elastic figurine too.
+  int direct_solver_max_dofs = 300;
+  /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0,
+  /// single_sheet 0), when larger: the multigrid's aggregates do not follow the ties, and
+  /// factorizing is as fast or faster up to 3 022 vertices of example 1's two-layer board
+  /// (docs/benchmarks.md).
   int direct_solver_max_dofs_layered = 20000;
   /// Iterative solver: relative residual of the adjoint solves in step_vjp() (> 0).
   double adjoint_tolerance = 1e-11;
