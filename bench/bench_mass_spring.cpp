@@ -3,7 +3,8 @@
 // board of example 1 (cloth with layer ties, 3 substeps, swung by its held edge) at 494, ~1k,
 // 4k and 16k vertices, plus its linearization (linearize_step, jvp, vjp). For comparisons,
 // environment variables override parameters: SUBS (substeps), NTOL (newton_tolerance), SOLVER
-// (direct, iterative or multigrid instead of the automatic linear solver choice).
+// (direct, iterative or multigrid instead of the automatic linear solver choice), FRAMES (steps
+// before the timed cloth step).
 
 #include <cmath>
 #include <cstdlib>
@@ -54,8 +55,9 @@ MassSpringSimulator make_cloth(int n) {
   if (std::getenv("SUBS")) prm.substeps = std::atoi(std::getenv("SUBS"));
   set_solver(prm);
   MassSpringSimulator sim(m, {0, n - 1}, prm);
-  // Start from a swinging state, not from rest.
-  for (int s = 0; s < 5; ++s) sim.step(pbve::StepInput{});
+  // Start from a swinging state, not from rest: after 5 steps (FRAMES overrides).
+  const int frames = std::getenv("FRAMES") ? std::atoi(std::getenv("FRAMES")) : 5;
+  for (int s = 0; s < frames; ++s) sim.step(pbve::StepInput{});
   return sim;
 }
 
