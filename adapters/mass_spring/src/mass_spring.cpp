@@ -312,10 +312,15 @@ struct MassSpringSimulator::Impl {
     for (size_t s = 0; s < m.springs.size(); ++s) {
       const Spring& sp = m.springs[s];
       const double l = (y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a)).norm();
-      const double dw = lag.dir[s].dot((y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
-                                       (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a)));
+      const Vector3d w = relative_step(y, xn, sp);
+      const double dw = lag.dir[s].dot(w);
       e += 0.5 * h * h * sp.k * (l - sp.rest) * (l - sp.rest) + 0.5 * h * b * sp.k * dw * dw;
+      if (sp.iso != 0.0)
+        e += 0.5 * sp.iso *
+             (h * h * (y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a)).squaredNorm() +
+              h * b * w.squaredNorm());
     }
+    if (m.bend_rest_force.size() > 0) e += h * h * m.bend_rest_force.dot(y);
     const int np = static_cast<int>(P().planes.size());
     for (int p = 0; p < np; ++p) {
       const Plane& pl = P().planes[static_cast<size_t>(p)];
@@ -350,12 +355,14 @@ struct MassSpringSimulator::Impl {
       const double l = d.norm();
       Vector3d g = Vector3d::Zero();
       if (l > 0.0) g = (h * h * sp.k * (l - sp.rest) / l) * d;
-      const double dw = lag.dir[s].dot((y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
-                                       (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a)));
+      const Vector3d w = relative_step(y, xn, sp);
+      const double dw = lag.dir[s].dot(w);
       g += (h * b * sp.k * dw) * lag.dir[s];
+      if (sp.iso != 0.0) g += (h * h * sp.iso) * d + (h * b * sp.iso) * w;
       r.segment<3>(3 * sp.b) += g;
       r.segment<3>(3 * sp.a) -= g;
     }
+    if (m.bend_rest_force.size() > 0) r += (h * h) * m.bend_rest_force;
     const int np = static_cast<int>(P().planes.size());
     for (int p = 0; p < np; ++p) {
       const Plane& pl = P().planes[static_cast<size_t>(p)];
@@ -372,7 +379,14 @@ struct MassSpringSimulator::Impl {
     }
   }
 
-  // Spring block of the Jacobian: h^2 * Hessian (projected to PSD unless exact) + h*beta*k*uu^T.
+  // The step of b relative to a: (y - xn)_b - (y - xn)_a.
+  static Vector3d relative_step(const VectorXd& y, const VectorXd& xn, const Spring& sp) {
+    return (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
+           (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
+  }
+
+  // Spring block of the Jacobian: h^2 * Hessian (projected to PSD unless exact) + h*beta*k*uu^T,
+  // plus (h^2 + h*beta) * iso * I.
   static Matrix3d spring_block(const Spring& sp, const Vector3d& d, const Vector3d& lag_dir,
                                double h, double beta, bool exact) {
     const double l = d.norm();
@@ -383,7 +397,8 @@ struct MassSpringSimulator::Impl {
       if (!exact) t = std::max(t, 0.0);
       H = sp.k * ((1.0 - t) * u * u.transpose() + t * Matrix3d::Identity());
     }
-    return h * h * H + (h * beta * sp.k) * lag_dir * lag_dir.transpose();
+    return h * h * H + (h * beta * sp.k) * lag_dir * lag_dir.transpose() +
+           ((h * h + h * beta) * sp.iso) * Matrix3d::Identity();
   }
 
   Matrix3d node_block(int i, const VectorXd& y, const Lag& lag, double h) const {
@@ -1021,13 +1036,13 @@ struct MassSpringSimulator::Impl {
       const Spring& sp = m.springs[sidx];
       const Vector3d& u = lag.dir[sidx];
       const Vector3d L = lam.segment<3>(3 * sp.b) - lam.segment<3>(3 * sp.a);
-      const Vector3d w = (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
-                         (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
+      const Vector3d w = relative_step(y, xn, sp);
       // -lam^T d/dx [h beta K(x) (y - x)] = +h beta K lam - h beta d/dx(lam^T K(x) w)|_w.
       const double uL = u.dot(L), uw = u.dot(w);
       Vector3d q = (h * beta * sp.k * uL) * u;
       const Vector3d PL = L - u * uL, Pw = w - u * uw;
       q -= (h * beta * sp.k * lag.inv_len[sidx]) * (PL * uw + Pw * uL);
+      q += (h * beta * sp.iso) * L;  // through w in h beta iso w
       gx_new.segment<3>(3 * sp.b) += q;
       gx_new.segment<3>(3 * sp.a) -= q;
     }
@@ -1087,12 +1102,12 @@ struct MassSpringSimulator::Impl {
       const Spring& sp = m.springs[sidx];
       const Vector3d& u = lag.dir[sidx];
       const Vector3d D = dxn.segment<3>(3 * sp.b) - dxn.segment<3>(3 * sp.a);
-      const Vector3d w = (y.segment<3>(3 * sp.b) - xn.segment<3>(3 * sp.b)) -
-                         (y.segment<3>(3 * sp.a) - xn.segment<3>(3 * sp.a));
+      const Vector3d w = relative_step(y, xn, sp);
       // g = h beta k (u . w) u with w = (y - xn)_b - (y - xn)_a and u = u(xn).
       const Vector3d du_dir = lag.inv_len[sidx] * (D - u * u.dot(D));
       const Vector3d dg =
-          (h * beta * sp.k) * (-u.dot(D) * u + w.dot(du_dir) * u + u.dot(w) * du_dir);
+          (h * beta * sp.k) * (-u.dot(D) * u + w.dot(du_dir) * u + u.dot(w) * du_dir) -
+          (h * beta * sp.iso) * D;
       dr.segment<3>(3 * sp.b) += dg;
       dr.segment<3>(3 * sp.a) -= dg;
     }

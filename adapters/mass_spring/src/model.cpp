@@ -1,11 +1,14 @@
 #include "model.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdint>
 #include <functional>
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <unordered_map>
 
 #include <tbb/parallel_for.h>
 #include <Eigen/Geometry>
@@ -77,6 +80,75 @@ void add_layer_ties(const Vertices& x, const Triangles& t, const Eigen::VectorXd
     const double l0 = (row(x, b) - row(x, a)).norm();
     if (!(l0 > 0.0)) continue;
     add_spring(a, b, l0, modulus * 0.5 * (vertex_area[a] + vertex_area[b]) / (l0 * l0));
+  }
+}
+
+// A hinge (interior edge x0 x1 between the triangles x0 x1 x2 and x1 x0 x3) that is flat at
+// rest, with the weights of its quadratic bending energy (Bergou et al. 2006, "A quadratic
+// bending model for inextensible surfaces"): E = 1/2 B / (A0 + A1) |sum_i K_i x_i|^2. The sum
+// is a discrete mean-curvature normal; E -> 1/2 B integral (k1 + k2)^2 dA as the mesh is
+// refined (1/2 B k^2 A on a cylinder of curvature k), and it vanishes on every flat
+// configuration, so rigid motions of a flat hinge cost nothing.
+struct FlatHinge {
+  std::array<int, 4> v;
+  std::array<double, 4> K;
+  double area;  // A0 + A1
+};
+
+// Rest hinges whose dihedral angle is at most this are flat (covers coordinates rounded to
+// single precision or to a few decimals in a file). Their quadratic energy subtracts its rest
+// value (Model::bend_rest_force), so a rest shape within it is still at equilibrium.
+constexpr double flat_hinge_angle = 1e-3;  // rad
+
+std::optional<FlatHinge> flat_hinge(const Vertices& x, int i0, int i1, int i2, int i3) {
+  const Vector3d x0 = row(x, i0), x1 = row(x, i1), x2 = row(x, i2), x3 = row(x, i3);
+  const Vector3d e0 = x1 - x0, e1 = x2 - x0, e2 = x3 - x0, e3 = x2 - x1, e4 = x3 - x1;
+  const Vector3d n0 = e0.cross(e1), n1 = e2.cross(e0);  // both along the normal when flat
+  const double a0 = n0.norm(), a1 = n1.norm();
+  if (!(a0 > 0.0) || !(a1 > 0.0)) return std::nullopt;
+  if (std::atan2(n0.cross(n1).norm(), n0.dot(n1)) > flat_hinge_angle) return std::nullopt;
+  const double c01 = e0.dot(e1) / a0, c02 = e0.dot(e2) / a1;    // cotangents at x0
+  const double c03 = -e0.dot(e3) / a0, c04 = -e0.dot(e4) / a1;  // at x1
+  FlatHinge h;
+  h.v = {i0, i1, i2, i3};
+  h.K = {c03 + c04, c01 + c02, -c01 - c03, -c02 - c04};
+  h.area = 0.5 * (a0 + a1);
+  for (double k : h.K)
+    if (!std::isfinite(k)) return std::nullopt;
+  return h;
+}
+
+// Adds the hinges' energies as isotropic couplings (-B/(A0+A1) K_i K_j on the pair i j: the
+// rows of K^T K sum to zero) on the springs of their six vertex pairs (made, with no stiffness,
+// where missing), and their rest forces.
+void add_flat_hinges(const Vertices& x, const std::vector<FlatHinge>& hinges, double B, Model& m) {
+  m.flat_hinges = static_cast<int>(hinges.size());
+  if (hinges.empty()) return;
+  std::unordered_map<std::uint64_t, size_t> index;
+  auto key = [](int a, int b) {
+    return (static_cast<std::uint64_t>(std::min(a, b)) << 32) |
+           static_cast<std::uint32_t>(std::max(a, b));
+  };
+  for (size_t s = 0; s < m.springs.size(); ++s)
+    index.emplace(key(m.springs[s].a, m.springs[s].b), s);
+  m.bend_rest_force = Eigen::VectorXd::Zero(3 * x.rows());
+  for (const FlatHinge& h : hinges) {
+    const double w = B / h.area;
+    Vector3d kx = Vector3d::Zero();
+    for (int i = 0; i < 4; ++i)
+      kx += h.K[static_cast<size_t>(i)] * row(x, h.v[static_cast<size_t>(i)]);
+    for (int i = 0; i < 4; ++i) {
+      const auto vi = static_cast<size_t>(i);
+      m.bend_rest_force.segment<3>(3 * h.v[vi]) -= (w * h.K[vi]) * kx;
+      for (int j = i + 1; j < 4; ++j) {
+        const auto vj = static_cast<size_t>(j);
+        const auto [it, added] = index.emplace(key(h.v[vi], h.v[vj]), m.springs.size());
+        if (added)
+          m.springs.push_back(
+              {h.v[vi], h.v[vj], (row(x, h.v[vj]) - row(x, h.v[vi])).norm(), 0.0, 0.0});
+        m.springs[it->second].iso -= w * h.K[vi] * h.K[vj];
+      }
+    }
   }
 }
 
@@ -208,21 +280,27 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
   if (!(m.char_length > 0.0))
     throw std::invalid_argument("mass_spring: all edges have zero length");
 
-  // Surface springs: edges (stretch), and across each interior edge (shear + bending).
+  // Surface springs: edges (stretch), and across each interior edge (shear, plus bending where
+  // the hinge is creased at rest; flat hinges bend by the quadratic energy below).
   auto add_spring = [&m](int a, int b, double rest, double k) {
     if (a == b || !(k > 0.0) || !(rest > 0.0)) return;
-    m.springs.push_back({a, b, rest, k});
+    m.springs.push_back({a, b, rest, k, 0.0});
   };
+  std::vector<FlatHinge> flat;
   for (const EdgeInfo& e : edges) {
     const double l0 = (row(positions, e.b) - row(positions, e.a)).norm();
     add_spring(e.a, e.b, l0, params.stretch_stiffness * e.area / (l0 * l0));
     if (e.opposite.size() == 2) {
       const int c = e.opposite[0], d = e.opposite[1];
       const double l1 = (row(positions, d) - row(positions, c)).norm();
-      if (l1 > 0.0)
-        add_spring(c, d, l1, (params.shear_stiffness * e.area + params.bend_stiffness) / (l1 * l1));
+      std::optional<FlatHinge> hinge;
+      if (params.bend_stiffness > 0.0) hinge = flat_hinge(positions, e.a, e.b, c, d);
+      if (hinge) flat.push_back(*hinge);
+      const double bend = hinge ? 0.0 : params.bend_stiffness;
+      if (l1 > 0.0) add_spring(c, d, l1, (params.shear_stiffness * e.area + bend) / (l1 * l1));
     }
   }
+  add_flat_hinges(positions, flat, params.bend_stiffness, m);
 
   if (params.material == Material::cloth && params.layer_stiffness > 0.0) {
     const size_t before = m.springs.size();
@@ -374,6 +452,8 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
   for (int v = 0; v < nv; ++v) m.rest.segment<3>(3 * v) = row(positions, v);
   for (size_t i = 0; i < lattice.size(); ++i)
     m.rest.segment<3>(3 * (nv + static_cast<Eigen::Index>(i))) = lattice[i];
+  if (m.bend_rest_force.size() > 0)
+    m.bend_rest_force.conservativeResizeLike(Eigen::VectorXd::Zero(3 * m.num_nodes));
   for (Eigen::Index i = 0; i < m.mass.size(); ++i)
     if (!(m.mass[i] > 0.0) || !std::isfinite(m.mass[i]))
       throw std::invalid_argument("mass_spring: node " + std::to_string(i) +

@@ -23,6 +23,9 @@ struct Spring {
   int a = 0, b = 0;   // node ids
   double rest = 0.0;  // rest length, m
   double k = 0.0;     // stiffness, N/m
+  // Isotropic linear coupling, N/m: adds 1/2 iso |x_b - x_a|^2 to the energy. Carries the
+  // quadratic bending energy of flat hinges; may be negative (each hinge's sum is PSD).
+  double iso = 0.0;
 };
 
 struct Model {
@@ -32,6 +35,10 @@ struct Model {
   Eigen::VectorXd mass;  // per node, kg
   Eigen::VectorXd rest;  // 3 * num_nodes rest positions (surface + lattice)
   std::vector<Spring> springs;
+  // Per node (3 * num_nodes, or empty): the quadratic bending force of the rest shape, which
+  // the flat-hinge bending energy subtracts so the rest shape is at equilibrium.
+  Eigen::VectorXd bend_rest_force;
+  int flat_hinges = 0;          // hinges with the quadratic bending energy (the rest: springs)
   std::vector<int> anchors;     // sorted surface vertex ids
   std::vector<int> free_index;  // per node: free block index, or -1 for anchors
   std::vector<int> free_nodes;  // free block -> node

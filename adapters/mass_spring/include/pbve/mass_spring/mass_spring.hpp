@@ -36,7 +36,7 @@ namespace pbve::mass_spring {
 
 /// Material model families.
 enum class Material {
-  cloth,    ///< surface only: stretch, shear and bending springs on the triangle mesh
+  cloth,    ///< surface only: stretch and shear springs and hinge bending on the triangle mesh
   elastic,  ///< soft solid: surface springs + an embedded interior lattice (keeps its volume)
   stiff,    ///< nearly rigid solid: like elastic with a finer, much stiffer lattice
 };
@@ -103,8 +103,15 @@ struct Params {
   /// Shear modulus of the springs across the two opposite vertices of each pair of adjacent
   /// triangles, N/m (0 disables them unless bend_stiffness > 0).
   double shear_stiffness = 100.0;
-  /// Bending modulus, N*m: adds bend_stiffness / L0^2 to the spring across each interior edge
-  /// (L0: rest distance of the two opposite vertices). Approximate (spring-based) bending.
+  /// Bending modulus B, N*m. A hinge (interior edge) whose two triangles are flat at rest
+  /// (dihedral angle up to 1e-3 rad) bends by the quadratic energy of isometric surfaces
+  /// (Bergou et al. 2006): B / (2 (A0 + A1)) |sum_i K_i x_i|^2 over its four vertices, K the
+  /// cotangent weights of the rest hinge, A0 and A1 its triangles' areas. It tends to
+  /// 1/2 B (k1 + k2)^2 per unit area (1/2 B k^2 on a cylinder of curvature k), is zero on every
+  /// flat shape, and its value at the rest shape is subtracted so a nearly flat rest shape is
+  /// at equilibrium. A creased hinge instead adds B / L0^2 to the spring across it (L0: rest
+  /// distance of the two opposite vertices), an approximate bending that only stiffens as the
+  /// angle grows (no stiffness at the rest angle).
   double bend_stiffness = 1e-4;
   /// Cloth: stiffness modulus of the ties between the two layers of a thin closed surface, N/m
   /// (0 disables them). A board or a thick sheet made into cloth is two layers joined at the
