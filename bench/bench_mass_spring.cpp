@@ -66,7 +66,7 @@ void BM_ClothStep(benchmark::State& state) {
   const pbve::SimState s0 = sim.save();
   pbve::StepInput in;
   in.control = Eigen::VectorXd::Constant(3 * sim.num_vertices(), 1e-5);
-  double cg = 0, newton = 0, fact = 0, curvature = 0;
+  double cg = 0, newton = 0, fact = 0, curvature = 0, unconverged = 0;
   for (auto _ : state) {
     sim.restore(s0);
     sim.step(in);
@@ -74,6 +74,7 @@ void BM_ClothStep(benchmark::State& state) {
     newton += sim.last_stats().newton_iterations;
     fact += sim.last_stats().factorizations;
     curvature += sim.last_stats().curvature_steps;
+    unconverged += sim.last_stats().converged ? 0 : 1;
   }
   state.counters["vertices"] = sim.num_vertices();
   state.counters["cg_iters"] = benchmark::Counter(cg, benchmark::Counter::kAvgIterations);
@@ -81,6 +82,9 @@ void BM_ClothStep(benchmark::State& state) {
   state.counters["factorizations"] = benchmark::Counter(fact, benchmark::Counter::kAvgIterations);
   state.counters["curvature_steps"] =
       benchmark::Counter(curvature, benchmark::Counter::kAvgIterations);
+  // 1 when the timed step left a substep short of the Newton tolerance.
+  state.counters["unconverged"] =
+      benchmark::Counter(unconverged, benchmark::Counter::kAvgIterations);
 }
 
 // step_vjp right after the step it differentiates (the recorded trajectory is reused: the
@@ -182,7 +186,7 @@ void BM_BoardStep(benchmark::State& state) {
   Board b = make_board(static_cast<int>(state.range(0)));
   const pbve::SimState s0 = b.sim->save();
   const pbve::StepInput in = b.input(b.frame);
-  double cg = 0, newton = 0, fact = 0, curvature = 0;
+  double cg = 0, newton = 0, fact = 0, curvature = 0, unconverged = 0;
   for (auto _ : state) {
     b.sim->restore(s0);
     b.sim->step(in);
@@ -190,6 +194,7 @@ void BM_BoardStep(benchmark::State& state) {
     newton += b.sim->last_stats().newton_iterations;
     fact += b.sim->last_stats().factorizations;
     curvature += b.sim->last_stats().curvature_steps;
+    unconverged += b.sim->last_stats().converged ? 0 : 1;
   }
   state.counters["vertices"] = b.sim->num_vertices();
   state.counters["cg_iters"] = benchmark::Counter(cg, benchmark::Counter::kAvgIterations);
@@ -197,6 +202,9 @@ void BM_BoardStep(benchmark::State& state) {
   state.counters["factorizations"] = benchmark::Counter(fact, benchmark::Counter::kAvgIterations);
   state.counters["curvature_steps"] =
       benchmark::Counter(curvature, benchmark::Counter::kAvgIterations);
+  // 1 when the timed step left a substep short of the Newton tolerance.
+  state.counters["unconverged"] =
+      benchmark::Counter(unconverged, benchmark::Counter::kAvgIterations);
 }
 
 // step_vjp right after the step (trajectory reused).
