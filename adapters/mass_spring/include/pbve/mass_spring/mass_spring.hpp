@@ -168,10 +168,10 @@ struct Params {
   /// LinearSolver::automatic uses the direct solver up to this many free unknowns (3 per node)
   /// and the multigrid solver above; 0 means multigrid always. Up to 96 free nodes the
   /// multigrid is one dense LL^T, slower than the sparse one; from 144 vertices on it is the
-  /// faster, by 1.4x there, 2.6x at 1k, 5x at 4k and 9x at 16k on a plain cloth (the direct
-  /// solver's cost grows about as n^1.5, the multigrid's about linearly; docs/benchmarks.md,
-  /// mass_spring, measured with the earlier spring bending), and on example 1's board and
-  /// example 2's elastic figurine too.
+  /// faster, by 1.4x there, 2.3x at 1k, 4.7x at 4k and 5.7x at 16k on a plain cloth (the
+  /// direct solver's cost grows about as n^1.5, the multigrid's about linearly;
+  /// docs/benchmarks.md, mass_spring), and on example 1's board and example 2's elastic
+  /// figurine too.
   int direct_solver_max_dofs = 300;
   /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0,
   /// single_sheet 0), when larger: the multigrid's aggregates do not follow the ties, and
