@@ -311,14 +311,12 @@ struct MassSpringSimulator::Impl {
     }
     for (size_t s = 0; s < m.springs.size(); ++s) {
       const Spring& sp = m.springs[s];
-      const double l = (y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a)).norm();
+      const Vector3d d = y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a);
+      const double l = d.norm();
       const Vector3d w = relative_step(y, xn, sp);
       const double dw = lag.dir[s].dot(w);
       e += 0.5 * h * h * sp.k * (l - sp.rest) * (l - sp.rest) + 0.5 * h * b * sp.k * dw * dw;
-      if (sp.iso != 0.0)
-        e += 0.5 * sp.iso *
-             (h * h * (y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a)).squaredNorm() +
-              h * b * w.squaredNorm());
+      if (sp.iso != 0.0) e += 0.5 * sp.iso * (h * h * d.squaredNorm() + h * b * w.squaredNorm());
     }
     if (m.bend_rest_force.size() > 0) e += h * h * m.bend_rest_force.dot(y);
     const int np = static_cast<int>(P().planes.size());
