@@ -98,6 +98,23 @@ void visibility_impl(const RayScene::Impl* impl, const Vertices& vertices,
 
         auto flush = [&]() {
           if (pending == 0) return;
+          // Embree's 16-wide queries on an 8-wide ISA may read the masked-off lanes too (and
+          // assert on them in builds with assertions): give them a copy of lane 0, whose result
+          // is ignored, rather than the previous flush's rays or uninitialised memory.
+          for (int k = pending; k < 16; ++k) {
+            packet.org_x[k] = packet.org_x[0];
+            packet.org_y[k] = packet.org_y[0];
+            packet.org_z[k] = packet.org_z[0];
+            packet.dir_x[k] = packet.dir_x[0];
+            packet.dir_y[k] = packet.dir_y[0];
+            packet.dir_z[k] = packet.dir_z[0];
+            packet.tnear[k] = packet.tnear[0];
+            packet.tfar[k] = packet.tfar[0];
+            packet.time[k] = packet.time[0];
+            packet.mask[k] = packet.mask[0];
+            packet.id[k] = static_cast<unsigned>(k);
+            packet.flags[k] = packet.flags[0];
+          }
           for (int k = 0; k < 16; ++k) valid[k] = k < pending ? -1 : 0;
           rtcOccluded16(valid, impl->scene, &context, &packet);
           for (int k = 0; k < pending; ++k)
