@@ -19,7 +19,10 @@
 /// multigrid solvers; the direct solver probes with a pseudo-random right side), where
 /// K(x) in the damping term is the axial spring stiffness \f$\sum_s k_s u_s u_s^T\f$ (the exact
 /// stiffness at rest, always positive semi-definite) evaluated at the start of the substep;
-/// its position derivative is part of the adjoint, so step_vjp() is exact.
+/// its position derivative is part of the adjoint, so step_vjp() is exact. Newton starts from
+/// x + h v, or within a step from x + h v + h (v - v_prev) (the previous substep's acceleration
+/// carried on) where that has the lower incremental potential; the start changes the result
+/// only within the Newton tolerance and depends on the step's input only, so replays are exact.
 ///
 /// Units are SI throughout: metres, kilograms, seconds, newtons, camera frame.
 
@@ -159,9 +162,11 @@ struct Params {
   /// Maximum Newton iterations per substep (>= 1).
   int newton_iterations = 30;
   /// Newton stops when the largest position update falls below newton_tolerance times the
-  /// mean rest edge length (> 0). Gradients from step_vjp() are exact at the converged point,
-  /// so their relative accuracy is about this tolerance; tighten it (e.g. 1e-12) for
-  /// finite-difference comparisons.
+  /// mean rest edge length (> 0), or, after a solve on the exact positive definite Hessian,
+  /// when the largest mass-scaled residual |r_i| / m_i does (a bound on the next update in the
+  /// mass norm, and in practice far above it node by node). Gradients from step_vjp() are exact at
+  /// the converged point, so their relative accuracy is about this tolerance; tighten it (e.g.
+  /// 1e-12) for finite-difference comparisons.
   double newton_tolerance = 1e-6;
   /// Linear solver choice.
   LinearSolver linear_solver = LinearSolver::automatic;
