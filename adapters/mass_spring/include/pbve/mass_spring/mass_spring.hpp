@@ -163,10 +163,11 @@ struct Params {
   int newton_iterations = 30;
   /// Newton stops when the largest position update falls below newton_tolerance times the
   /// mean rest edge length (> 0), or, after a solve on the exact positive definite Hessian,
-  /// when the largest mass-scaled residual |r_i| / m_i does (a bound on the next update in the
-  /// mass norm, and in practice far above it node by node). Gradients from step_vjp() are exact at
-  /// the converged point, so their relative accuracy is about this tolerance; tighten it (e.g.
-  /// 1e-12) for finite-difference comparisons.
+  /// when the largest mass-scaled residual |r_i| / m_i does (with a positive semi-definite
+  /// stiffness, a bound on the next update in the mass norm; in practice far above it node by
+  /// node). Gradients from step_vjp() are exact at the converged point, so their relative
+  /// accuracy is about this tolerance; tighten it (e.g. 1e-12) for finite-difference
+  /// comparisons.
   double newton_tolerance = 1e-6;
   /// Linear solver choice.
   LinearSolver linear_solver = LinearSolver::automatic;
