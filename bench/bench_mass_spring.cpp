@@ -1,10 +1,11 @@
 // pbve::mass_spring: one step (dt 1/30 s, default substeps) of an anchored cloth at 484, ~1k,
-// 4k and 16k vertices, and one step_vjp relative to one step; the same for the thin two-layer
-// board of example 1 (cloth with layer ties, 3 substeps, swung by its held edge) at 494, ~1k,
-// 4k and 16k vertices, plus its linearization (linearize_step, jvp, vjp). For comparisons,
-// environment variables override parameters: SUBS (substeps), NTOL (newton_tolerance), SOLVER
-// (direct, iterative or multigrid instead of the automatic linear solver choice), FRAMES (steps
-// before the timed cloth step).
+// 4k and 16k vertices (and at 33k and 65k, to follow the growth further), and one step_vjp
+// relative to one step; the same for the thin two-layer board of example 1 (cloth with layer
+// ties, 3 substeps, swung by its held edge) at 494, ~1k, 4k and 16k vertices, plus its
+// linearization (linearize_step, jvp, vjp). For comparisons, environment variables override
+// parameters: SUBS (substeps), NTOL (newton_tolerance), SOLVER (direct, iterative or multigrid
+// instead of the automatic linear solver choice), FRAMES (steps before the timed cloth step),
+// BEND (the cloth's bend_stiffness, N m).
 
 #include <cmath>
 #include <cstdlib>
@@ -53,6 +54,7 @@ MassSpringSimulator make_cloth(int n) {
   Params prm = Params::preset(Material::cloth);
   if (std::getenv("NTOL")) prm.newton_tolerance = std::atof(std::getenv("NTOL"));
   if (std::getenv("SUBS")) prm.substeps = std::atoi(std::getenv("SUBS"));
+  if (std::getenv("BEND")) prm.bend_stiffness = std::atof(std::getenv("BEND"));
   set_solver(prm);
   MassSpringSimulator sim(m, {0, n - 1}, prm);
   // Start from a swinging state, not from rest: after 5 steps (FRAMES overrides).
@@ -274,6 +276,8 @@ BENCHMARK(BM_ClothStep)
     ->Arg(32)
     ->Arg(64)
     ->Arg(128)
+    ->Arg(181)
+    ->Arg(256)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjp)->Arg(22)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjpReplay)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
