@@ -61,9 +61,11 @@ enum class LinearSolver {
   iterative,
   /// conjugate gradients preconditioned by one smoothed-aggregation multigrid V-cycle (the
   /// aggregates and prolongators built once per model from the springs, the coarse matrices
-  /// formed once per substep): setup and iterations cost time linear in the number of nodes,
-  /// and a finest level of 2048 nodes or more is smoothed by two threads (same results with
-  /// any number). Indefinite adjoint systems (exact Hessian of compressed springs) run MINRES
+  /// formed once per substep): setup and iterations do work linear in the number of nodes
+  /// (the iteration count grows where the cloth's bending outweighs inertia at the grid scale:
+  /// x1.5 from 4k to 16k vertices of the bench cloth, x1.7 from 16k to 65k), and a finest
+  /// level of 2048 nodes or more is smoothed by two threads (same results with any number).
+  /// Indefinite adjoint systems (exact Hessian of compressed springs) run MINRES
   /// preconditioned by the multigrid of the projected Hessian. Measured (docs/benchmarks.md,
   /// mass_spring): a cloth step 2.3x faster than `direct` at 1k vertices, 6.2x at 4k, 6.4x at
   /// 16k; about as fast on example 1's thin board, whose two layers are tied
@@ -175,9 +177,9 @@ struct Params {
   /// and the multigrid solver above; 0 means multigrid always. Up to 96 free nodes the
   /// multigrid is one dense LL^T, slower than the sparse one; from 144 vertices on it is the
   /// faster, by 1.4x there, 2.3x at 1k, 4.7x at 4k and 5.7x at 16k on a plain cloth (the
-  /// direct solver's cost grows about as n^1.5, the multigrid's about linearly;
-  /// docs/benchmarks.md, mass_spring), and on example 1's board and example 2's elastic
-  /// figurine too.
+  /// direct solver's cost grows about as n^1.5, the multigrid's about linearly up to 4k
+  /// vertices and x5 from 4k to 16k; docs/benchmarks.md, mass_spring), and on example 1's
+  /// board and example 2's elastic figurine too.
   int direct_solver_max_dofs = 300;
   /// The same limit for a thin closed cloth whose two layers are tied (layer_stiffness > 0,
   /// single_sheet 0), when larger: the multigrid's aggregates do not follow the ties, and
