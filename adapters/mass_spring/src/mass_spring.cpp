@@ -222,6 +222,10 @@ struct MassSpringSimulator::Impl {
   // that a step's result depends only on its start and input; later solves of the substep
   // keep the coarse levels and take only the new finest matrix).
   bool multigrid_coarse_stale = true;
+  // The last substep's Newton remainder: the residual its first update left beyond that
+  // solve's own linear residual, as a fraction of the residual before it (0: none measured in
+  // this step).
+  double newton_remainder = 0.0;
   // Adjoint solves of indefinite exact Hessians: LL^T, else LDL^T, else LU (a copy starts
   // empty).
   struct Fallback {
@@ -838,9 +842,14 @@ struct MassSpringSimulator::Impl {
     // The forcing term follows Eisenstat and Walker's second choice, 0.9 (|r_k| / |r_k-1|)^2
     // with their safeguard, between 1e-4 (1e-3 with block Jacobi) and 0.1: tight where Newton
     // converges quadratically, looser while it does not (line searches, after a curvature step),
-    // where a tight solve of the local model is wasted.
+    // where a tight solve of the local model is wasted. A substep's first solve has no
+    // previous ratio: it runs to the fraction of the residual that the last substep's first
+    // update left as Newton remainder (the next residual is at least that, whatever the linear
+    // residual), the tightest forcing in a step's first substep.
     const double min_forcing = use_block_jacobi() ? 1e-3 : 1e-4, max_forcing = 0.1;
-    double last_norm = 0.0, forcing = min_forcing;
+    double last_norm = 0.0, forcing = std::clamp(newton_remainder, min_forcing, max_forcing);
+    double linear_norm = 0.0;  // the last linear solve's final residual, mass-scaled
+    bool full_first = false;   // the first update: an exact solve's full step
     for (int it = 1; it <= P().newton_iterations; ++it) {
       residual(y, xn, vn, lag, h, r);
       const VectorXd rf = gather_free(r);
@@ -851,6 +860,9 @@ struct MassSpringSimulator::Impl {
         if (0.9 * forcing * forcing > 0.1) eta = std::max(eta, 0.9 * forcing * forcing);
         forcing = std::clamp(eta, min_forcing, max_forcing);
       }
+      if (it == 2)
+        newton_remainder =
+            full_first && last_norm > 0.0 ? std::max(norm - linear_norm, 0.0) / last_norm : 0.0;
       last_norm = norm;
       // Also converged when the mass-scaled residual max_i |r_i| / m_i is below the tolerance
       // after an exact, positive definite solve: it bounds the next update. With a positive
@@ -860,7 +872,10 @@ struct MassSpringSimulator::Impl {
       // that would only confirm the update's size.
       if (it > 1 && last_exact && norm <= tol) return it - 1;
       const double target = std::max(forcing * norm, 0.1 * tol);
-      auto stop = [&](const VectorXd& res) { return mass_scaled_inf(res) <= target; };
+      auto stop = [&](const VectorXd& res) {
+        linear_norm = mass_scaled_inf(res);
+        return linear_norm <= target;
+      };
       // The exact Hessian while conjugate gradients find it positive definite (quadratic
       // convergence; the solution is then a descent direction), else the one with compressed
       // springs' negative transverse stiffness dropped (positive semi-definite springs: always
@@ -936,6 +951,7 @@ struct MassSpringSimulator::Impl {
         exact = true;
         continue;
       }
+      if (it == 1) full_first = t == 1.0 && last_exact && !negative;
       if (t == 1.0 && step_inf <= tol) return it;
     }
     return -P().newton_iterations;
@@ -998,6 +1014,7 @@ struct MassSpringSimulator::Impl {
     phys_norm.setZero(m.num_surface);
     Lag lag;
     VectorXd y;
+    newton_remainder = 0.0;
     for (int s = 1; s <= S; ++s) {
       const VectorXd ya = anchor_at(a0, in, s, S);
       make_lag(x, v, in.control, lag);
