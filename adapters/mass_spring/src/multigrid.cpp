@@ -182,6 +182,7 @@ Blocks build_plans(Level& level) {
   // T = P^T A: row b sums w * (row i of A) over the nodes i of P's column b.
   Blocks& T = level.T;
   T.start.assign(1, 0);
+  level.t_plan.assign(1, 0);
   std::vector<int> mark(static_cast<size_t>(n), -1);
   for (int b = 0; b < nc; ++b) {
     const int row_begin = static_cast<int>(T.col.size());
@@ -200,10 +201,12 @@ Blocks build_plans(Level& level) {
       }
     }
     T.start.push_back(static_cast<int>(T.col.size()));
+    level.t_plan.push_back(static_cast<int>(level.to_t.size()));
   }
   // A_next = T P: block (b, c) sums w * T(b, j) over the entries (j, c) of P.
   Blocks next;
   next.start.assign(1, 0);
+  level.next_plan.assign(1, 0);
   std::vector<int> cmark(static_cast<size_t>(nc), -1);
   for (int b = 0; b < nc; ++b) {
     const int row_begin = static_cast<int>(next.col.size());
@@ -221,6 +224,7 @@ Blocks build_plans(Level& level) {
       }
     }
     next.start.push_back(static_cast<int>(next.col.size()));
+    level.next_plan.push_back(static_cast<int>(level.to_next.size()));
   }
   next.diag.assign(static_cast<size_t>(nc), -1);
   for (int b = 0; b < nc; ++b)
@@ -247,6 +251,26 @@ void for_rows(const Level& level, int n, F f) {
   }
   tbb::parallel_for(tbb::blocked_range<int>(0, n, 2048), [&](const tbb::blocked_range<int>& r) {
     for (int k = r.begin(); k != r.end(); ++k) f(k);
+  });
+}
+
+// f(begin, end) over ranges of the next level's nodes [0, level.coarse), in parallel on a
+// split level (the finest level's coarse nodes are too few for for_rows' grain).
+template <class F>
+void coarse_ranges(const Level& level, F f) {
+  if (!threaded(level)) {
+    f(0, level.coarse);
+    return;
+  }
+  tbb::parallel_for(tbb::blocked_range<int>(0, level.coarse, 64),
+                    [&](const tbb::blocked_range<int>& r) { f(r.begin(), r.end()); });
+}
+
+// f(c) for each of the next level's nodes, as coarse_ranges().
+template <class F>
+void coarse_rows(const Level& level, F f) {
+  coarse_ranges(level, [&](int begin, int end) {
+    for (int c = begin; c < end; ++c) f(c);
   });
 }
 
@@ -428,15 +452,29 @@ bool Multigrid::setup(const SparseMatrix<double>& J, bool coarse) {
       m_coarse_ready = true;
       return true;
     }
-    m_T.assign(level.T.col.size(), Block::Zero());
-    for (const auto& p : level.to_t)
-      m_T[static_cast<size_t>(p.dst)].noalias() +=
-          static_cast<Real>(p.w) * m_A[l][static_cast<size_t>(p.src)];
+    m_T.resize(level.T.col.size());
+    coarse_ranges(level, [&](int b0, int b1) {
+      std::fill(m_T.begin() + level.T.start[static_cast<size_t>(b0)],
+                m_T.begin() + level.T.start[static_cast<size_t>(b1)], Block::Zero());
+      for (int q = level.t_plan[static_cast<size_t>(b0)]; q < level.t_plan[static_cast<size_t>(b1)];
+           ++q) {
+        const auto& p = level.to_t[static_cast<size_t>(q)];
+        m_T[static_cast<size_t>(p.dst)].noalias() +=
+            static_cast<Real>(p.w) * m_A[l][static_cast<size_t>(p.src)];
+      }
+    });
     std::vector<Block>& next = m_A[l + 1];
-    std::fill(next.begin(), next.end(), Block::Zero());
-    for (const auto& p : level.to_next)
-      next[static_cast<size_t>(p.dst)].noalias() +=
-          static_cast<Real>(p.w) * m_T[static_cast<size_t>(p.src)];
+    coarse_ranges(level, [&](int b0, int b1) {
+      const Blocks& N = levels[l + 1].A;
+      std::fill(next.begin() + N.start[static_cast<size_t>(b0)],
+                next.begin() + N.start[static_cast<size_t>(b1)], Block::Zero());
+      for (int q = level.next_plan[static_cast<size_t>(b0)];
+           q < level.next_plan[static_cast<size_t>(b1)]; ++q) {
+        const auto& p = level.to_next[static_cast<size_t>(q)];
+        next[static_cast<size_t>(p.dst)].noalias() +=
+            static_cast<Real>(p.w) * m_T[static_cast<size_t>(p.src)];
+      }
+    });
   }
   // The coarsest level, dense.
   const Blocks& C = levels.back().A;
@@ -554,14 +592,14 @@ void Multigrid::cycle(size_t l) const {
   sw.lower(&b, x, s, m_sep, true);
   sw.rows([&](int k) { s.segment<3>(3 * k) = -sw.upper(x, k); });
   Vector& bc = m_b[l + 1];
-  for (int c = 0; c < level.coarse; ++c) {
+  coarse_rows(level, [&](int c) {
     Vec3 acc = Vec3::Zero();
     for (int q = level.p_col_start[static_cast<size_t>(c)];
          q < level.p_col_start[static_cast<size_t>(c) + 1]; ++q)
       acc += static_cast<Real>(level.p_col_w[static_cast<size_t>(q)]) *
              s.segment<3>(3 * level.c_col_row[static_cast<size_t>(q)]);
     bc.segment<3>(3 * c) = acc;
-  }
+  });
   cycle(l + 1);
   // Coarse correction, then s = b - L x and the backward sweep.
   const Vector& xc = m_x[l + 1];

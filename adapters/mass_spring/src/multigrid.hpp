@@ -52,9 +52,13 @@ class MultigridHierarchy {
     std::vector<double> p_row_w, p_col_w;
     int coarse = 0;  // nodes of the next level
     // Galerkin product A_next = P^T A P in two passes through T = P^T A (pattern `T`):
-    // T[dst] += w A[src], then A_next[dst] += w T[src].
+    // T[dst] += w A[src], then A_next[dst] += w T[src]. Both plans are in the order of their
+    // destination rows (the next level's nodes): row b's entries are to_t[t_plan[b] ..
+    // t_plan[b + 1]) and to_next[next_plan[b] .. next_plan[b + 1]), and write only to row b, so
+    // rows can be summed in parallel with the serial result.
     Blocks T;
     std::vector<PlanEntry> to_t, to_next;
+    std::vector<int> t_plan, next_plan;
     // The V-cycle's order of the level's nodes: position k is node order[k]. On a large finest
     // level, two parts with no coupling between them, then their separator: positions
     // [0, part[0]) and [part[0], part[1]) are smoothed in parallel, [part[1], n) after them
