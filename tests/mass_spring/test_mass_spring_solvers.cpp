@@ -379,8 +379,9 @@ TEST(MassSpringSolvers, ParallelClonesReproduceSerialRuns) {
 
 TEST(MassSpringSolvers, AStepDoesNotDependOnTheThreadCount) {
   // A 64 x 64 cloth (about 24k springs, 4096 nodes) takes the threaded paths: the spring blocks
-  // and block columns of the Newton matrix are assembled in parallel and the multigrid's finest
-  // level is smoothed as two parts. One thread must give the same bits.
+  // and block columns of the Newton matrix are assembled in parallel, the multigrid's finest
+  // level is smoothed as two parts, and its restriction and Galerkin product to the next level
+  // run by ranges of coarse rows. One thread must give the same bits.
   const int n = 64;
   const pbve::Mesh mesh = pbve::test::grid_mesh(n, 1.0);
   Params p = Params::preset(Material::cloth);
