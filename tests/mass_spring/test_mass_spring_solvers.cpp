@@ -379,7 +379,8 @@ TEST(MassSpringSolvers, ParallelClonesReproduceSerialRuns) {
 
 TEST(MassSpringSolvers, AStepDoesNotDependOnTheThreadCount) {
   // A 64 x 64 cloth (about 24k springs, 4096 nodes) takes the threaded paths: the spring blocks
-  // and block columns of the Newton matrix are assembled in parallel, the multigrid's finest
+  // and block columns of the Newton matrix, the springs' forces and the nodes' residuals, and
+  // chunks of the incremental potential are computed in parallel, the multigrid's finest
   // level is smoothed as two parts, and its restriction and Galerkin product to the next level
   // run by ranges of coarse rows. One thread must give the same bits.
   const int n = 64;

@@ -216,6 +216,7 @@ struct MassSpringSimulator::Impl {
   std::vector<Matrix3d> precond;        // inverse diagonal blocks (iterative solver)
   detail::Multigrid multigrid;          // LinearSolver::multigrid: set up per solve
   std::vector<Matrix3d> spring_blocks;  // assemble(): per spring
+  std::vector<Vector3d> spring_forces;  // residual(): per spring, on its end b
   // assemble() computes the spring blocks of at least this many springs in parallel.
   static constexpr size_t parallel_springs = 20000;
   // The next multigrid setup recomputes the coarse levels (set at each substep's start, so
@@ -302,6 +303,27 @@ struct MassSpringSimulator::Impl {
   }
 
   // Incremental potential whose gradient is the backward Euler residual (J-units: kg m).
+  // The sum of term(k) over [0, n): in one pass on small models, else in fixed chunks of 4096
+  // summed in parallel, then in order: the same bits whatever the threads.
+  template <class F>
+  static double sum_over(size_t n, F term) {
+    if (n < parallel_springs) {
+      double e = 0.0;
+      for (size_t k = 0; k < n; ++k) e += term(k);
+      return e;
+    }
+    constexpr size_t chunk = 4096;
+    std::vector<double> part((n + chunk - 1) / chunk);
+    tbb::parallel_for(size_t{0}, part.size(), [&](size_t c) {
+      double e = 0.0;
+      for (size_t k = c * chunk; k < std::min(n, (c + 1) * chunk); ++k) e += term(k);
+      part[c] = e;
+    });
+    double e = 0.0;
+    for (double p : part) e += p;
+    return e;
+  }
+
   double potential(const VectorXd& y, const VectorXd& xn, const VectorXd& vn, const Lag& lag,
                    double h) const {
     const Model& m = *model;
@@ -313,15 +335,16 @@ struct MassSpringSimulator::Impl {
       e += 0.5 * m.mass[i] * (wp.squaredNorm() + h * a * w.squaredNorm()) -
            h * h * lag.fext.segment<3>(3 * i).dot(y.segment<3>(3 * i));
     }
-    for (size_t s = 0; s < m.springs.size(); ++s) {
+    e += sum_over(m.springs.size(), [&](size_t s) {
       const Spring& sp = m.springs[s];
       const Vector3d d = y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a);
       const double l = d.norm();
       const Vector3d w = relative_step(y, xn, sp);
       const double dw = lag.dir[s].dot(w);
-      e += 0.5 * h * h * sp.k * (l - sp.rest) * (l - sp.rest) + 0.5 * h * b * sp.k * dw * dw;
-      if (sp.iso != 0.0) e += 0.5 * sp.iso * (h * h * d.squaredNorm() + h * b * w.squaredNorm());
-    }
+      double es = 0.5 * h * h * sp.k * (l - sp.rest) * (l - sp.rest) + 0.5 * h * b * sp.k * dw * dw;
+      if (sp.iso != 0.0) es += 0.5 * sp.iso * (h * h * d.squaredNorm() + h * b * w.squaredNorm());
+      return es;
+    });
     if (m.bend_rest_force.size() > 0) e += h * h * m.bend_rest_force.dot(y);
     const int np = static_cast<int>(P().planes.size());
     for (int p = 0; p < np; ++p) {
@@ -340,45 +363,69 @@ struct MassSpringSimulator::Impl {
     return e;
   }
 
-  // Residual r(y) on all nodes (3N; only free rows are equations).
+  // Residual r(y) on the free nodes (3 per free node, in free_nodes order): each spring's force
+  // first (in parallel on large models), then each node's own terms plus its springs' forces in
+  // spring order, the sums of a serial pass over the springs whatever the threads.
   void residual(const VectorXd& y, const VectorXd& xn, const VectorXd& vn, const Lag& lag, double h,
-                VectorXd& r) const {
+                VectorXd& rf) {
     const Model& m = *model;
     const double a = P().damping_alpha, b = P().damping_beta;
-    r.resize(3 * N());
-    for (int i = 0; i < N(); ++i) {
-      const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
-      r.segment<3>(3 * i) = m.mass[i] * ((1.0 + h * a) * w - h * vn.segment<3>(3 * i)) -
-                            h * h * lag.fext.segment<3>(3 * i);
-    }
-    for (size_t s = 0; s < m.springs.size(); ++s) {
-      const Spring& sp = m.springs[s];
-      const Vector3d d = y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a);
-      const double l = d.norm();
-      Vector3d g = Vector3d::Zero();
-      if (l > 0.0) g = (h * h * sp.k * (l - sp.rest) / l) * d;
-      const Vector3d w = relative_step(y, xn, sp);
-      const double dw = lag.dir[s].dot(w);
-      g += (h * b * sp.k * dw) * lag.dir[s];
-      if (sp.iso != 0.0) g += (h * h * sp.iso) * d + (h * b * sp.iso) * w;
-      r.segment<3>(3 * sp.b) += g;
-      r.segment<3>(3 * sp.a) -= g;
-    }
-    if (m.bend_rest_force.size() > 0) r += (h * h) * m.bend_rest_force;
-    const int np = static_cast<int>(P().planes.size());
-    for (int p = 0; p < np; ++p) {
-      const Plane& pl = P().planes[static_cast<size_t>(p)];
-      const Vector3d n = pl.normal.normalized();
-      for (int i = 0; i < N(); ++i) {
-        const double phi = (y.segment<3>(3 * i) - pl.point).dot(n);
-        if (phi < 0.0) r.segment<3>(3 * i) += (h * h * P().contact_stiffness * phi) * n;
-        const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
-        if (c > 0.0) {
-          const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
-          r.segment<3>(3 * i) += (h * c) * (w - n * n.dot(w));
-        }
+    spring_forces.resize(m.springs.size());
+    auto springs = [&](size_t begin, size_t end) {
+      for (size_t s = begin; s != end; ++s) {
+        const Spring& sp = m.springs[s];
+        const Vector3d d = y.segment<3>(3 * sp.b) - y.segment<3>(3 * sp.a);
+        const double l = d.norm();
+        Vector3d g = Vector3d::Zero();
+        if (l > 0.0) g = (h * h * sp.k * (l - sp.rest) / l) * d;
+        const Vector3d w = relative_step(y, xn, sp);
+        const double dw = lag.dir[s].dot(w);
+        g += (h * b * sp.k * dw) * lag.dir[s];
+        if (sp.iso != 0.0) g += (h * h * sp.iso) * d + (h * b * sp.iso) * w;
+        spring_forces[s] = g;  // on b; minus on a
       }
+    };
+    const int np = static_cast<int>(P().planes.size());
+    rf.resize(3 * static_cast<Eigen::Index>(m.free_nodes.size()));
+    auto nodes = [&](size_t begin, size_t end) {
+      for (size_t f = begin; f != end; ++f) {
+        const int i = m.free_nodes[f];
+        const Vector3d w = y.segment<3>(3 * i) - xn.segment<3>(3 * i);
+        Vector3d r = m.mass[i] * ((1.0 + h * a) * w - h * vn.segment<3>(3 * i)) -
+                     h * h * lag.fext.segment<3>(3 * i);
+        for (int k = m.incident_start[f]; k < m.incident_start[f + 1]; ++k) {
+          const auto s = static_cast<size_t>(m.incident_spring[static_cast<size_t>(k)]);
+          if (m.springs[s].b == i)
+            r += spring_forces[s];
+          else
+            r -= spring_forces[s];
+        }
+        if (m.bend_rest_force.size() > 0) r += (h * h) * m.bend_rest_force.segment<3>(3 * i);
+        for (int p = 0; p < np; ++p) {
+          const Plane& pl = P().planes[static_cast<size_t>(p)];
+          const Vector3d n = pl.normal.normalized();
+          const double phi = (y.segment<3>(3 * i) - pl.point).dot(n);
+          if (phi < 0.0) r += (h * h * P().contact_stiffness * phi) * n;
+          const double c = lag.fric[static_cast<Eigen::Index>(i) * np + p];
+          if (c > 0.0) r += (h * c) * (w - n * n.dot(w));
+        }
+        rf.segment<3>(3 * static_cast<Eigen::Index>(f)) = r;
+      }
+    };
+    if (m.springs.size() < parallel_springs) {
+      springs(0, m.springs.size());
+      nodes(0, m.free_nodes.size());
+      return;
     }
+    in_parallel(m.springs.size(), 4096, springs);
+    in_parallel(m.free_nodes.size(), 1024, nodes);
+  }
+
+  // f(begin, end) over [0, n) in chunks of at least `grain`, in parallel.
+  template <class F>
+  static void in_parallel(size_t n, size_t grain, F f) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
+                      [&](const tbb::blocked_range<size_t>& r) { f(r.begin(), r.end()); });
   }
 
   // The step of b relative to a: (y - xn)_b - (y - xn)_a.
@@ -459,10 +506,6 @@ struct MassSpringSimulator::Impl {
       columns(0, m.free_nodes.size());
       return;
     }
-    auto in_parallel = [](size_t n, size_t grain, auto f) {
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
-                        [&](const tbb::blocked_range<size_t>& r) { f(r.begin(), r.end()); });
-    };
     in_parallel(m.springs.size(), 4096, springs);
     in_parallel(m.free_nodes.size(), 1024, columns);
   }
@@ -785,12 +828,12 @@ struct MassSpringSimulator::Impl {
   // tenth of the decrease a g.d + a^2 c / 2 (both terms <= 0) that its quadratic model
   // predicts, and by more than its own rounding. Returns false (y unchanged) if none does.
   bool curvature_step(const VectorXd& d, double c, const VectorXd& xn, const VectorXd& vn,
-                      const Lag& lag, double h, VectorXd& y, VectorXd& trial) const {
+                      const Lag& lag, double h, VectorXd& y, VectorXd& trial) {
     const Model& m = *model;
     const double scale = d.lpNorm<Eigen::Infinity>();
     if (!(scale > 0.0) || !(c < 0.0)) return false;
-    residual(y, xn, vn, lag, h, trial);
-    const VectorXd g = gather_free(trial);
+    VectorXd g;
+    residual(y, xn, vn, lag, h, g);
     const double sign = g.dot(d) > 0.0 ? -1.0 / scale : 1.0 / scale;
     const double slope = sign * g.dot(d);  // per metre of the largest coordinate move
     const double bend = c / (scale * scale);
@@ -821,7 +864,7 @@ struct MassSpringSimulator::Impl {
     for (size_t k = 0; k < m.anchors.size(); ++k)
       y.segment<3>(3 * m.anchors[k]) = ya.segment<3>(3 * static_cast<Eigen::Index>(k));
     if (m.free_nodes.empty()) return 0;
-    VectorXd r, dy_free, trial;
+    VectorXd dy_free, trial;
     if (vprev) {
       // Start from the previous substep's acceleration carried on, x + h v + h^2 a with
       // a = (v - v_prev) / h, where that lowers the incremental potential (it does not across
@@ -851,8 +894,8 @@ struct MassSpringSimulator::Impl {
     double linear_norm = 0.0;  // the last linear solve's final residual, mass-scaled
     bool full_first = false;   // the first update: an exact solve's full step
     for (int it = 1; it <= P().newton_iterations; ++it) {
-      residual(y, xn, vn, lag, h, r);
-      const VectorXd rf = gather_free(r);
+      VectorXd rf;
+      residual(y, xn, vn, lag, h, rf);
       const double norm = mass_scaled_inf(rf);
       if (it > 1 && last_norm > 0.0) {
         const double ratio = norm / last_norm;
