@@ -234,8 +234,10 @@ Blocks build_plans(Level& level) {
   return next;
 }
 
-// A finest level of at least this many nodes is smoothed by two threads.
+// A finest level of at least this many nodes is smoothed by two threads, a coarser one (not
+// the coarsest) of at least parallel_coarse_nodes.
 constexpr int parallel_nodes = 2048;
+constexpr int parallel_coarse_nodes = 1024;
 
 // Whether threads run `level` (a split level).
 bool threaded(const Level& level) {
@@ -274,13 +276,15 @@ void coarse_rows(const Level& level, F f) {
   });
 }
 
-// The V-cycle order of `level` (see Level::order) and everything kept in that order.
-void order_level(Level& level, bool split) {
+// The V-cycle order of `level` (see Level::order) and everything kept in that order; `next`:
+// the next level, already ordered (null on the coarsest). Splits the level in two parts from
+// min_split nodes.
+void order_level(Level& level, int min_split, const Level* next) {
   const Blocks& A = level.A;
   const int n = A.rows();
   level.order.clear();
   level.part[0] = level.part[1] = n;
-  if (split && level.coarse > 0 && n >= parallel_nodes) {
+  if (level.coarse > 0 && n >= min_split) {
     // The halves of the node numbering (meshes number their nodes with some locality), and
     // the first half's nodes coupled to the second as the separator.
     const int half = n / 2;
@@ -326,17 +330,30 @@ void order_level(Level& level, bool split) {
   level.c_row_start.assign(1, 0);
   level.c_row_col.clear();
   level.c_row_w.clear();
-  if (level.coarse == 0) return;
+  level.c_col_start.assign(1, 0);
+  level.c_col_row.clear();
+  level.c_col_w.clear();
+  if (level.coarse == 0 || !next) return;
+  std::vector<int> next_rank(static_cast<size_t>(level.coarse));
+  for (int k = 0; k < level.coarse; ++k)
+    next_rank[static_cast<size_t>(next->order[static_cast<size_t>(k)])] = k;
   for (int k = 0; k < n; ++k) {
     const auto i = static_cast<size_t>(level.order[static_cast<size_t>(k)]);
     for (int q = level.p_row_start[i]; q < level.p_row_start[i + 1]; ++q) {
-      level.c_row_col.push_back(level.p_row_col[static_cast<size_t>(q)]);
+      level.c_row_col.push_back(
+          next_rank[static_cast<size_t>(level.p_row_col[static_cast<size_t>(q)])]);
       level.c_row_w.push_back(level.p_row_w[static_cast<size_t>(q)]);
     }
     level.c_row_start.push_back(static_cast<int>(level.c_row_col.size()));
   }
-  level.c_col_row.clear();
-  for (int r : level.p_col_row) level.c_col_row.push_back(rank[static_cast<size_t>(r)]);
+  for (int k = 0; k < level.coarse; ++k) {
+    const auto c = static_cast<size_t>(next->order[static_cast<size_t>(k)]);
+    for (int q = level.p_col_start[c]; q < level.p_col_start[c + 1]; ++q) {
+      level.c_col_row.push_back(rank[static_cast<size_t>(level.p_col_row[static_cast<size_t>(q)])]);
+      level.c_col_w.push_back(level.p_col_w[static_cast<size_t>(q)]);
+    }
+    level.c_col_start.push_back(static_cast<int>(level.c_col_row.size()));
+  }
 }
 
 }  // namespace
@@ -385,7 +402,10 @@ MultigridHierarchy::MultigridHierarchy(const SparseMatrix<double>& pattern,
     coarse.A = std::move(next);
     m_levels.push_back(std::move(coarse));
   }
-  for (size_t l = 0; l < m_levels.size(); ++l) order_level(m_levels[l], l == 0);
+  // From the coarsest level up: each level's transfer indexes the next level's order.
+  for (size_t l = m_levels.size(); l-- > 0;)
+    order_level(m_levels[l], l == 0 ? parallel_nodes : parallel_coarse_nodes,
+                l + 1 < m_levels.size() ? &m_levels[l + 1] : nullptr);
 }
 
 Multigrid::Multigrid(std::shared_ptr<const MultigridHierarchy> hierarchy)
@@ -594,9 +614,9 @@ void Multigrid::cycle(size_t l) const {
   Vector& bc = m_b[l + 1];
   coarse_rows(level, [&](int c) {
     Vec3 acc = Vec3::Zero();
-    for (int q = level.p_col_start[static_cast<size_t>(c)];
-         q < level.p_col_start[static_cast<size_t>(c) + 1]; ++q)
-      acc += static_cast<Real>(level.p_col_w[static_cast<size_t>(q)]) *
+    for (int q = level.c_col_start[static_cast<size_t>(c)];
+         q < level.c_col_start[static_cast<size_t>(c) + 1]; ++q)
+      acc += static_cast<Real>(level.c_col_w[static_cast<size_t>(q)]) *
              s.segment<3>(3 * level.c_col_row[static_cast<size_t>(q)]);
     bc.segment<3>(3 * c) = acc;
   });

@@ -59,8 +59,8 @@ class MultigridHierarchy {
     Blocks T;
     std::vector<PlanEntry> to_t, to_next;
     std::vector<int> t_plan, next_plan;
-    // The V-cycle's order of the level's nodes: position k is node order[k]. On a large finest
-    // level, two parts with no coupling between them, then their separator: positions
+    // The V-cycle's order of the level's nodes: position k is node order[k]. On a large level
+    // (not the coarsest), two parts with no coupling between them, then their separator: positions
     // [0, part[0]) and [part[0], part[1]) are smoothed in parallel, [part[1], n) after them
     // (before them backwards); elsewhere the natural order, one part (part[0] = part[1] = n).
     // The smoother is Gauss-Seidel in that order whether or not threads run it.
@@ -71,9 +71,11 @@ class MultigridHierarchy {
     // symmetric), half of A's memory traffic.
     Blocks U;
     std::vector<int> u_src, d_src;
-    // The prolongator in that order: by rows (positions) and, by columns, the positions.
-    std::vector<int> c_row_start, c_row_col, c_col_row;
-    std::vector<double> c_row_w;
+    // The prolongator in the orders of this level and the next: by rows (this level's
+    // positions; columns the next level's positions) and by columns (the next level's
+    // positions; rows this level's positions).
+    std::vector<int> c_row_start, c_row_col, c_col_start, c_col_row;
+    std::vector<double> c_row_w, c_col_w;
   };
   const std::vector<Level>& levels() const { return m_levels; }
   /// Level 0's blocks in the pattern: entry (r, c) of block e is valuePtr()[fine_offsets()[3 e +
