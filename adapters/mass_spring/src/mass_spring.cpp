@@ -302,7 +302,6 @@ struct MassSpringSimulator::Impl {
       for (int i = 0; i < m.num_surface; ++i) lag.fext.segment<3>(3 * i) += u.segment<3>(3 * i);
   }
 
-  // Incremental potential whose gradient is the backward Euler residual (J-units: kg m).
   // The sum of term(k) over [0, n): in one pass on small models, else in fixed chunks of 4096
   // summed in parallel, then in order: the same bits whatever the threads.
   template <class F>
@@ -324,6 +323,7 @@ struct MassSpringSimulator::Impl {
     return e;
   }
 
+  // Incremental potential whose gradient is the backward Euler residual (J-units: kg m).
   double potential(const VectorXd& y, const VectorXd& xn, const VectorXd& vn, const Lag& lag,
                    double h) const {
     const Model& m = *model;
