@@ -257,7 +257,7 @@ void for_rows(const Level& level, int n, F f) {
 }
 
 // f(begin, end) over ranges of the next level's nodes [0, level.coarse), in parallel on a
-// split level (the finest level's coarse nodes are too few for for_rows' grain).
+// split level (the next level's nodes are too few for for_rows' grain).
 template <class F>
 void coarse_ranges(const Level& level, F f) {
   if (!threaded(level)) {

@@ -130,7 +130,7 @@ class Multigrid {
   Eigen::LLT<Eigen::MatrixXd> m_coarsest;
   bool m_coarse_ready = false;                // the last full setup succeeded
   mutable std::vector<Vector> m_b, m_x, m_r;  // per level: right side, iterate, residual
-  mutable Vector m_sep[2];     // finest level: each part's contributions to the separator rows
+  mutable Vector m_sep[2];     // split levels: each part's contributions to the separator rows
   mutable Vector m_in, m_out;  // multiply(): x and y in the finest level's order
 };
 
