@@ -64,7 +64,9 @@ enum class LinearSolver {
   /// formed once per substep): setup and iterations do work linear in the number of nodes
   /// (the iteration count grows where the cloth's bending outweighs inertia at the grid scale:
   /// x1.5 from 4k to 16k vertices of the bench cloth, x1.7 from 16k to 65k), and a finest
-  /// level of 2048 nodes or more is smoothed by two threads (same results with any number).
+  /// level of 2048 nodes or more, a coarser one of 1024 or more, is smoothed by two threads,
+  /// as are the Galerkin products and restrictions from such a level (same results with any
+  /// number of threads).
   /// Indefinite adjoint systems (exact Hessian of compressed springs) run MINRES
   /// preconditioned by the multigrid of the projected Hessian. Measured (docs/benchmarks.md,
   /// mass_spring): a cloth step 2.3x faster than `direct` at 1k vertices, 6.2x at 4k, 6.4x at
