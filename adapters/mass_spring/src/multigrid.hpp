@@ -127,7 +127,9 @@ class Multigrid {
   // diagonal blocks and their inverses.
   std::vector<std::vector<Block>> m_A, m_U, m_D, m_Dinv;
   std::vector<Block> m_T;
-  Eigen::LLT<Eigen::MatrixXd> m_coarsest;
+  // Made from an empty matrix, not default-constructed: Eigen's default LLT leaves its
+  // ComputationInfo uninitialized, which moving a Multigrid would then read.
+  Eigen::LLT<Eigen::MatrixXd> m_coarsest{Eigen::MatrixXd(0, 0)};
   bool m_coarse_ready = false;                // the last full setup succeeded
   mutable std::vector<Vector> m_b, m_x, m_r;  // per level: right side, iterate, residual
   mutable Vector m_sep[2];     // split levels: each part's contributions to the separator rows
