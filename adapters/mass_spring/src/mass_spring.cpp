@@ -864,7 +864,7 @@ struct MassSpringSimulator::Impl {
     for (size_t k = 0; k < m.anchors.size(); ++k)
       y.segment<3>(3 * m.anchors[k]) = ya.segment<3>(3 * static_cast<Eigen::Index>(k));
     if (m.free_nodes.empty()) return 0;
-    VectorXd dy_free, trial;
+    VectorXd rf, dy_free, trial;
     if (vprev) {
       // Start from the previous substep's acceleration carried on, x + h v + h^2 a with
       // a = (v - v_prev) / h, where that lowers the incremental potential (it does not across
@@ -894,7 +894,6 @@ struct MassSpringSimulator::Impl {
     double linear_norm = 0.0;  // the last linear solve's final residual, mass-scaled
     bool full_first = false;   // the first update: an exact solve's full step
     for (int it = 1; it <= P().newton_iterations; ++it) {
-      VectorXd rf;
       residual(y, xn, vn, lag, h, rf);
       const double norm = mass_scaled_inf(rf);
       if (it > 1 && last_norm > 0.0) {
