@@ -410,4 +410,23 @@ std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const T
   return ties;
 }
 
+double default_layer_reach(const Vertices& x, const Triangles& t) {
+  std::vector<std::uint64_t> keys;
+  keys.reserve(static_cast<size_t>(3 * t.rows()));
+  for (Eigen::Index f = 0; f < t.rows(); ++f)
+    for (int k = 0; k < 3; ++k) keys.push_back(edge_key(t(f, k), t(f, (k + 1) % 3)));
+  std::sort(keys.begin(), keys.end());
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  double total = 0.0;
+  for (const std::uint64_t key : keys)
+    total += (row(x, key_second(key)) - row(x, key_first(key))).norm();
+  const double mean = keys.empty() ? 0.0 : total / static_cast<double>(keys.size());
+  if (!(mean > 0.0) || !std::isfinite(mean)) return 0.0;
+  const double cap = thin_layer_fraction * (x.colwise().maxCoeff() - x.colwise().minCoeff()).norm();
+  for (double reach = mean;; reach = std::min(2.0 * reach, cap)) {
+    if (!opposite_layer_pairs(x, t, reach).empty()) return reach;
+    if (!(reach < cap)) return mean;
+  }
+}
+
 }  // namespace pbve

@@ -335,6 +335,20 @@ TEST(BulletCloth, LayerTiesKeepTheFrontLayerOfABoardInFront) {
   EXPECT_GT(gap_tied, 0.5 * 0.01);
 }
 
+// The same board meshed finer than its 1 cm thickness (mean edge about 5 mm): with the
+// default layer distance it is still one sheet, one face's vertices.
+TEST(BulletCloth, AFinelyMeshedBoardIsStillOneSheet) {
+  const pbve::Mesh mesh = pbve::refine_mesh(pbve::make_box_mesh(0.4, 0.3, 0.01), 0.007);
+  const BulletSimulator sim(mesh, {}, Params::preset(Material::cloth));
+  EXPECT_EQ(sim.num_layer_ties(), 0);
+  const std::vector<int> nodes = sim.node_vertices();
+  ASSERT_FALSE(nodes.empty());
+  EXPECT_LT(nodes.size(), static_cast<size_t>(mesh.num_vertices() / 2));
+  const double side = mesh.vertices(nodes.front(), 2);
+  EXPECT_NEAR(std::abs(side), 0.005, 1e-12);
+  for (int v : nodes) EXPECT_EQ(mesh.vertices(v, 2), side) << "node vertex " << v;
+}
+
 // Simulated as one sheet (the default), one face is the Bullet cloth and every other vertex
 // follows it at its rest offset: the board keeps its 1 cm thickness exactly and its mass.
 TEST(BulletCloth, ThinBoardIsOneSheetWithItsOtherFaceAttached) {

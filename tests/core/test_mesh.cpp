@@ -2,16 +2,19 @@
 
 #include "pbve/core/mesh.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <set>
 #include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
 
 #include "pbve/core/error.hpp"
+#include "pbve/core/thin_sheet.hpp"
 #include "pbve/edit/synth.hpp"
 #include "support/test_util.hpp"
 
@@ -931,6 +934,70 @@ TEST(MeshLayers, BoardFacesArePairedVertexToVertex) {
 TEST(MeshLayers, ThickClosedSurfaceHasNoPairs) {
   const Mesh ball = make_icosphere(0.1, 3);
   EXPECT_TRUE(opposite_layer_pairs(ball.vertices, ball.triangles, 0.01).empty());
+}
+
+// The mean length of the mesh's undirected edges, computed here on its own.
+double mean_edge(const Mesh& m) {
+  std::set<std::pair<int, int>> edges;
+  for (Eigen::Index f = 0; f < m.triangles.rows(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = m.triangles(f, k), b = m.triangles(f, (k + 1) % 3);
+      edges.emplace(std::min(a, b), std::max(a, b));
+    }
+  double total = 0.0;
+  for (const auto& [a, b] : edges) total += (m.vertices.row(b) - m.vertices.row(a)).norm();
+  return total / static_cast<double>(edges.size());
+}
+
+// A board 1 cm thick meshed coarser than its thickness: its layers are within the mean edge,
+// which is the default reach, as before.
+TEST(MeshLayers, DefaultReachIsTheMeanEdgeWhereItFindsTheLayers) {
+  const Mesh board = refine_mesh(make_box_mesh(0.4, 0.3, 0.01), 0.05);
+  const double mean = mean_edge(board);
+  ASSERT_GT(mean, 0.01);
+  EXPECT_NEAR(default_layer_reach(board.vertices, board.triangles), mean, 1e-12 * mean);
+}
+
+// The same board meshed finer than its thickness (mean edge about 5 mm): no facing pair lies
+// within the mean edge, so the reach doubles until the layers, 1 cm apart, are found; the
+// board then splits into one sheet.
+TEST(MeshLayers, DefaultReachFindsTheLayersOfAFinelyMeshedBoard) {
+  const Mesh board = refine_mesh(make_box_mesh(0.4, 0.3, 0.01), 0.007);
+  const double mean = mean_edge(board);
+  ASSERT_LT(mean, 0.01);
+  ASSERT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, mean).empty());
+  const double reach = default_layer_reach(board.vertices, board.triangles);
+  EXPECT_GE(reach, 0.01);
+  // A doubling of the mean edge: the first at which pairs appear.
+  const double doublings = std::log2(reach / mean);
+  EXPECT_NEAR(doublings, std::round(doublings), 1e-9);
+  EXPECT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, reach / 2).empty());
+  EXPECT_FALSE(opposite_layer_pairs(board.vertices, board.triangles, reach).empty());
+  EXPECT_TRUE(make_thin_sheet(board.vertices, board.triangles, reach).has_value());
+  EXPECT_FALSE(make_thin_sheet(board.vertices, board.triangles, mean).has_value());
+}
+
+// Nothing faces across a ball within 5% of its bounding box's diagonal (0.017 m against a
+// diameter of 0.2 m), nor across an open sheet: the reach stays the mean edge. A mesh without
+// triangles has none.
+TEST(MeshLayers, DefaultReachStaysTheMeanEdgeWithoutLayers) {
+  const Mesh ball = make_icosphere(0.1, 3);
+  EXPECT_NEAR(default_layer_reach(ball.vertices, ball.triangles), mean_edge(ball),
+              1e-12 * mean_edge(ball));
+  Mesh sheet;  // 0.3 x 0.2 m, 12 x 8 cells
+  sheet.vertices.resize(13 * 9, 3);
+  sheet.triangles.resize(2 * 12 * 8, 3);
+  for (int j = 0; j <= 8; ++j)
+    for (int i = 0; i <= 12; ++i) sheet.vertices.row(j * 13 + i) << 0.025 * i, 0.025 * j, 0.0;
+  for (int j = 0, f = 0; j < 8; ++j)
+    for (int i = 0; i < 12; ++i) {
+      const int v = j * 13 + i;
+      sheet.triangles.row(f++) << v, v + 1, v + 14;
+      sheet.triangles.row(f++) << v, v + 14, v + 13;
+    }
+  EXPECT_NEAR(default_layer_reach(sheet.vertices, sheet.triangles), mean_edge(sheet),
+              1e-12 * mean_edge(sheet));
+  EXPECT_EQ(default_layer_reach(ball.vertices, Triangles(0, 3)), 0.0);
 }
 
 }  // namespace

@@ -271,6 +271,21 @@ TEST(MassSpringPhysics, GroundPlaneStopsFallingCloth) {
 
 namespace {
 
+// The board of example 1 (1 cm thick) meshed finer than its thickness, as `pbve bench
+// --vertices 8000` refines it: with the default layer distance it is still one sheet, its
+// nodes one face's vertices.
+TEST(MassSpringCloth, AFinelyMeshedBoardIsStillOneSheet) {
+  const pbve::Mesh mesh = pbve::refine_mesh(pbve::make_box_mesh(0.4, 0.3, 0.01), 0.007);
+  ASSERT_GT(mesh.num_vertices(), 4000);
+  std::vector<int> anchors;
+  for (int i = 0; i < mesh.num_vertices(); ++i)
+    if (std::abs(mesh.vertices(i, 1)) < 1e-9 && std::abs(mesh.vertices(i, 0)) <= 0.05)
+      anchors.push_back(i);
+  const MassSpringSimulator sim(mesh, anchors, Params::preset(Material::cloth));
+  EXPECT_TRUE(sim.single_sheet());
+  EXPECT_LT(sim.num_nodes(), mesh.num_vertices() / 2);
+}
+
 // Largest deviation, over the vertex pairs facing each other across a 1 cm board made into
 // cloth, of their distance from the thickness, while the board is twisted about its held
 // middle (the motion of example 1).

@@ -346,17 +346,8 @@ void BulletSimulator::Impl::build_soft(const Impl* like) {
   for (int i = 0; i < n; ++i)
     if (!(vertex_mass(i) > 0.0)) vertex_mass(i) = mean_mass > 0.0 ? mean_mass : 1e-3;
 
-  // Mean edge length: the default reach of the layer rule.
-  std::set<std::pair<int, int>> edges;
+  const double reach = p.layer_distance > 0.0 ? p.layer_distance : default_layer_reach(x, t);
   auto key = [](int a, int b) { return std::make_pair(std::min(a, b), std::max(a, b)); };
-  for (Eigen::Index f = 0; f < t.rows(); ++f)
-    for (int k = 0; k < 3; ++k) edges.insert(key(t(f, k), t(f, (k + 1) % 3)));
-  double reach = p.layer_distance;
-  if (!(reach > 0.0)) {
-    double total = 0.0;
-    for (const auto& [a, b] : edges) total += (x.row(b) - x.row(a)).norm();
-    reach = edges.empty() ? 0.0 : total / static_cast<double>(edges.size());
-  }
 
   // A thin closed cloth as one sheet: its nodes are the vertices of one layer.
   if (like) {

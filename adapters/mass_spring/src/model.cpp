@@ -177,13 +177,8 @@ std::optional<ThinSheet> thin_sheet_of(const Mesh& mesh, const Vertices& positio
   if (std::adjacent_find(sorted.begin(), sorted.end()) != sorted.end() ||
       (!sorted.empty() && (sorted.front() < 0 || sorted.back() >= nv)))
     return std::nullopt;
-  double reach = params.layer_distance;
-  if (!(reach > 0.0)) {
-    const std::vector<EdgeInfo> edges = collect_edges(t, Eigen::VectorXd::Zero(t.rows()));
-    double total = 0.0;
-    for (const EdgeInfo& e : edges) total += (row(positions, e.b) - row(positions, e.a)).norm();
-    reach = edges.empty() ? 0.0 : total / static_cast<double>(edges.size());
-  }
+  const double reach =
+      params.layer_distance > 0.0 ? params.layer_distance : default_layer_reach(positions, t);
   if (!(reach > 0.0)) return std::nullopt;
   return make_thin_sheet(positions, t, reach);
 }
@@ -305,9 +300,10 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
 
   if (params.material == Material::cloth && params.layer_stiffness > 0.0) {
     const size_t before = m.springs.size();
-    add_layer_ties(positions, tris, vertex_area,
-                   params.layer_distance > 0.0 ? params.layer_distance : m.char_length,
-                   params.layer_stiffness, add_spring);
+    add_layer_ties(
+        positions, tris, vertex_area,
+        params.layer_distance > 0.0 ? params.layer_distance : default_layer_reach(positions, tris),
+        params.layer_stiffness, add_spring);
     m.layer_ties = static_cast<int>(m.springs.size() - before);
   }
 
