@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
 #include "mesh_arrays.hpp"
@@ -354,19 +355,28 @@ double enclosed_volume(const Vertices& vertices, const Triangles& triangles) {
   return v / 6.0;
 }
 
-std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const Triangles& t,
-                                                      double reach) {
-  if (!(reach > 0.0) || !std::isfinite(reach))
-    throw std::invalid_argument("opposite_layer_pairs: reach must be positive and finite");
+namespace {
+
+/// Unit area-weighted vertex normals (zero for a vertex in no triangle of positive area).
+std::vector<Eigen::Vector3d> vertex_normals(const Vertices& x, const Triangles& t) {
   using Eigen::Vector3d;
-  const int nv = static_cast<int>(x.rows());
-  std::vector<Vector3d> normal(static_cast<size_t>(nv), Vector3d::Zero());
+  std::vector<Vector3d> normal(static_cast<size_t>(x.rows()), Vector3d::Zero());
   for (Eigen::Index f = 0; f < t.rows(); ++f) {
     const Vector3d n = (row(x, t(f, 1)) - row(x, t(f, 0))).cross(row(x, t(f, 2)) - row(x, t(f, 0)));
     for (int k = 0; k < 3; ++k) normal[static_cast<size_t>(t(f, k))] += n;
   }
   for (Vector3d& n : normal)
     if (n.norm() > 0.0) n.normalize();
+  return normal;
+}
+
+/// opposite_layer_pairs() from the vertex normals, unsorted; with `first_only`, stops at the
+/// first vertex that has a partner.
+std::vector<std::pair<int, int>> facing_pairs(const Vertices& x,
+                                              const std::vector<Eigen::Vector3d>& normal,
+                                              double reach, bool first_only) {
+  using Eigen::Vector3d;
+  const int nv = static_cast<int>(x.rows());
   const Vector3d lo = x.colwise().minCoeff().transpose();
   auto cell_of = [&](const Vector3d& p) {
     return Eigen::Vector3i(((p - lo) / reach).array().floor().cast<int>());
@@ -404,13 +414,25 @@ std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const T
         }
     if (best < 0) continue;
     ties.emplace_back(std::min(i, best), std::max(i, best));
+    if (first_only) break;
   }
+  return ties;
+}
+
+}  // namespace
+
+std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const Triangles& t,
+                                                      double reach) {
+  if (!(reach > 0.0) || !std::isfinite(reach))
+    throw std::invalid_argument("opposite_layer_pairs: reach must be positive and finite");
+  std::vector<std::pair<int, int>> ties = facing_pairs(x, vertex_normals(x, t), reach, false);
   std::sort(ties.begin(), ties.end());
   ties.erase(std::unique(ties.begin(), ties.end()), ties.end());
   return ties;
 }
 
 double default_layer_reach(const Vertices& x, const Triangles& t) {
+  using Eigen::Vector3d;
   std::vector<std::uint64_t> keys;
   keys.reserve(static_cast<size_t>(3 * t.rows()));
   for (Eigen::Index f = 0; f < t.rows(); ++f)
@@ -422,11 +444,29 @@ double default_layer_reach(const Vertices& x, const Triangles& t) {
     total += (row(x, key_second(key)) - row(x, key_first(key))).norm();
   const double mean = keys.empty() ? 0.0 : total / static_cast<double>(keys.size());
   if (!(mean > 0.0) || !std::isfinite(mean)) return 0.0;
+  const std::vector<Vector3d> normal = vertex_normals(x, t);
+  if (!facing_pairs(x, normal, mean, true).empty()) return mean;
+  // Only a flat thin body can have its layers farther apart than a mean edge and within the
+  // bound: its extent along its smallest principal axis is within the bound.
   const double cap = thin_layer_fraction * (x.colwise().maxCoeff() - x.colwise().minCoeff()).norm();
-  for (double reach = mean;; reach = std::min(2.0 * reach, cap)) {
-    if (!opposite_layer_pairs(x, t, reach).empty()) return reach;
-    if (!(reach < cap)) return mean;
+  const Eigen::RowVector3d centroid = x.colwise().mean();
+  const Eigen::Matrix3d scatter = (x.rowwise() - centroid).transpose() * (x.rowwise() - centroid);
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> axes(scatter);
+  const Eigen::VectorXd across = (x.rowwise() - centroid) * axes.eigenvectors().col(0);
+  if (!(across.maxCoeff() - across.minCoeff() <= cap)) return mean;
+  // Nor can vertices face each other (normals more than 134 degrees apart) when every normal
+  // is within 66 degrees of their mean: an open, nearly flat sheet.
+  Vector3d sum = Vector3d::Zero();
+  for (const Vector3d& n : normal) sum += n;
+  if (sum.norm() > 0.0 && std::all_of(normal.begin(), normal.end(), [&](const Vector3d& n) {
+        return n.norm() == 0.0 || n.dot(sum.normalized()) > 0.4;
+      }))
+    return mean;
+  for (double reach = std::min(2.0 * mean, cap); reach > mean; reach = std::min(2.0 * reach, cap)) {
+    if (!facing_pairs(x, normal, reach, true).empty()) return reach;
+    if (!(reach < cap)) break;
   }
+  return mean;
 }
 
 }  // namespace pbve

@@ -977,6 +977,22 @@ TEST(MeshLayers, DefaultReachFindsTheLayersOfAFinelyMeshedBoard) {
   EXPECT_FALSE(make_thin_sheet(board.vertices, board.triangles, mean).has_value());
 }
 
+// The fine board bent into a half cylinder (faces still 1 cm apart): not a flat body, so the
+// reach stays the mean edge (its layers are then simulated apart, as before the doubling).
+TEST(MeshLayers, DefaultReachLeavesABentBoardAtTheMeanEdge) {
+  Mesh board = refine_mesh(make_box_mesh(0.4, 0.3, 0.01), 0.007);
+  const double R = 0.4 / 3.14159265358979;
+  for (Eigen::Index i = 0; i < board.vertices.rows(); ++i) {
+    const double theta = board.vertices(i, 0) / R, r = R + board.vertices(i, 2);
+    board.vertices(i, 0) = r * std::sin(theta);
+    board.vertices(i, 2) = r * std::cos(theta);
+  }
+  const double mean = mean_edge(board);
+  ASSERT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, mean).empty());
+  ASSERT_FALSE(opposite_layer_pairs(board.vertices, board.triangles, 0.011).empty());
+  EXPECT_NEAR(default_layer_reach(board.vertices, board.triangles), mean, 1e-12 * mean);
+}
+
 // Nothing faces across a ball within 5% of its bounding box's diagonal (0.017 m against a
 // diameter of 0.2 m), nor across an open sheet: the reach stays the mean edge. A mesh without
 // triangles has none.

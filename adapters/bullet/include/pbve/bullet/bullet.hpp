@@ -78,8 +78,9 @@ struct Params {
   /// or order: the layers still slide and pass through each other where the cloth folds.
   double layer_stiffness = 0.5;
   /// Cloth: largest distance between the two layers of a thin closed surface (for the sheet and
-  /// for the ties), metres; 0 uses pbve::default_layer_reach() (the mean edge length, doubled
-  /// until facing vertices lie within it, at most 5% of the bounding box's diagonal).
+  /// for the ties), metres; 0 uses pbve::default_layer_reach() (the mean edge length, or for a
+  /// flat board whose faces lie farther apart, that length doubled until facing vertices lie
+  /// within it, at most 5% of the bounding box's diagonal).
   double layer_distance = 0.0;
   /// Soft: shape matching, in [0, 1] (Bullet's kMT): each substep pulls every node this
   /// fraction of the way towards the best rigid motion of the rest shape.
