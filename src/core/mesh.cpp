@@ -11,7 +11,6 @@
 #include <utility>
 #include <vector>
 
-#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
 #include "mesh_arrays.hpp"
@@ -432,36 +431,32 @@ std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const T
 }
 
 double default_layer_reach(const Vertices& x, const Triangles& t) {
-  using Eigen::Vector3d;
   std::vector<std::uint64_t> keys;
   keys.reserve(static_cast<size_t>(3 * t.rows()));
   for (Eigen::Index f = 0; f < t.rows(); ++f)
     for (int k = 0; k < 3; ++k) keys.push_back(edge_key(t(f, k), t(f, (k + 1) % 3)));
   std::sort(keys.begin(), keys.end());
+  // Closed: every undirected edge in exactly two triangles.
+  bool closed = !keys.empty();
+  for (size_t k = 0; closed && k < keys.size(); k += 2)
+    closed = k + 1 < keys.size() && keys[k + 1] == keys[k] &&
+             (k + 2 == keys.size() || keys[k + 2] != keys[k]);
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
   double total = 0.0;
   for (const std::uint64_t key : keys)
     total += (row(x, key_second(key)) - row(x, key_first(key))).norm();
   const double mean = keys.empty() ? 0.0 : total / static_cast<double>(keys.size());
   if (!(mean > 0.0) || !std::isfinite(mean)) return 0.0;
-  const std::vector<Vector3d> normal = vertex_normals(x, t);
-  if (!facing_pairs(x, normal, mean, true).empty()) return mean;
-  // Only a flat thin body can have its layers farther apart than a mean edge and within the
-  // bound: its extent along its smallest principal axis is within the bound.
+  const std::vector<Eigen::Vector3d> normal = vertex_normals(x, t);
+  if (!closed || !facing_pairs(x, normal, mean, true).empty()) return mean;
+  // Only a thin closed body can have its layers farther apart than a mean edge and within the
+  // bound: its mean thickness, twice its enclosed volume over its area, is within the bound.
   const double cap = thin_layer_fraction * (x.colwise().maxCoeff() - x.colwise().minCoeff()).norm();
-  const Eigen::RowVector3d centroid = x.colwise().mean();
-  const Eigen::Matrix3d scatter = (x.rowwise() - centroid).transpose() * (x.rowwise() - centroid);
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> axes(scatter);
-  const Eigen::VectorXd across = (x.rowwise() - centroid) * axes.eigenvectors().col(0);
-  if (!(across.maxCoeff() - across.minCoeff() <= cap)) return mean;
-  // Nor can vertices face each other (normals more than 134 degrees apart) when every normal
-  // is within 66 degrees of their mean: an open, nearly flat sheet.
-  Vector3d sum = Vector3d::Zero();
-  for (const Vector3d& n : normal) sum += n;
-  if (sum.norm() > 0.0 && std::all_of(normal.begin(), normal.end(), [&](const Vector3d& n) {
-        return n.norm() == 0.0 || n.dot(sum.normalized()) > 0.4;
-      }))
-    return mean;
+  double area = 0.0;
+  for (Eigen::Index f = 0; f < t.rows(); ++f)
+    area +=
+        0.5 * (row(x, t(f, 1)) - row(x, t(f, 0))).cross(row(x, t(f, 2)) - row(x, t(f, 0))).norm();
+  if (!(2.0 * std::abs(enclosed_volume(x, t)) <= cap * area)) return mean;
   for (double reach = std::min(2.0 * mean, cap); reach > mean; reach = std::min(2.0 * reach, cap)) {
     if (!facing_pairs(x, normal, reach, true).empty()) return reach;
     if (!(reach < cap)) break;

@@ -106,16 +106,17 @@ std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& vertices,
                                                       const Triangles& triangles, double reach);
 
 /// The engines' default reach of opposite_layer_pairs() (layer_distance 0): the mean edge
-/// length; for a flat thin body (its extent along its smallest principal axis at most
-/// `thin_layer_fraction` of its bounding box's diagonal) with no facing pair within a mean
-/// edge, the mean edge doubled until some pair lies within it, up to that bound. So a board's
-/// two layers are found however finely it is meshed (a board 1 cm thick has no facing pair
-/// within a mean edge of 7 mm). Where no pair lies within the bound (an open sheet, a thick
-/// or a bent body) it is the mean edge length; 0 for a mesh without edges of positive length.
+/// length; for a thin closed body (every edge in two triangles, and its mean thickness, twice
+/// its enclosed volume over its area, at most `thin_layer_fraction` of its bounding box's
+/// diagonal) with no facing pair within a mean edge, the mean edge doubled until some pair lies
+/// within it, up to that bound. So a board's two layers are found however finely it is meshed
+/// (a board 1 cm thick has no facing pair within a mean edge of 7 mm), flat or bent. Elsewhere
+/// (an open surface, a thick body) it is the mean edge length; 0 for a mesh without edges of
+/// positive length.
 /// Costs about one opposite_layer_pairs() at the mean edge.
 double default_layer_reach(const Vertices& vertices, const Triangles& triangles);
-/// The largest thickness of a flat thin body, as a fraction of its bounding box's diagonal,
-/// that default_layer_reach() reaches (a board 0.4 x 0.3 m by 1 cm is 2%).
+/// The largest mean thickness of a thin closed body, as a fraction of its bounding box's
+/// diagonal, that default_layer_reach() reaches (a board 0.4 x 0.3 m by 1 cm is 2%).
 inline constexpr double thin_layer_fraction = 0.05;
 
 }  // namespace pbve

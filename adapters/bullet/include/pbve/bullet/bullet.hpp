@@ -79,7 +79,7 @@ struct Params {
   double layer_stiffness = 0.5;
   /// Cloth: largest distance between the two layers of a thin closed surface (for the sheet and
   /// for the ties), metres; 0 uses pbve::default_layer_reach() (the mean edge length, or for a
-  /// flat board whose faces lie farther apart, that length doubled until facing vertices lie
+  /// thin closed board whose faces lie farther apart, that length doubled until facing vertices lie
   /// within it, at most 5% of the bounding box's diagonal).
   double layer_distance = 0.0;
   /// Soft: shape matching, in [0, 1] (Bullet's kMT): each substep pulls every node this

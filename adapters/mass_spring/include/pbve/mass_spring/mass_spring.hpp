@@ -130,9 +130,9 @@ struct Params {
   double layer_stiffness = 100.0;
   /// Cloth: largest distance between the two layers of a thin closed surface (for the sheet and
   /// for the ties), metres; 0 uses pbve::default_layer_reach(): the mean rest edge length, or
-  /// for a flat board whose faces lie farther apart, that length doubled until facing vertices
-  /// lie within it (at most 5% of the bounding box's diagonal), so that a board's layers are
-  /// found however finely it is meshed.
+  /// for a thin closed board whose faces lie farther apart, that length doubled until facing
+  /// vertices lie within it (at most 5% of the bounding box's diagonal), so that a board's layers
+  /// are found however finely it is meshed.
   double layer_distance = 0.0;
   /// Cloth: simulate a thin closed surface (a board: two layers within layer_distance joined
   /// by a rim, pbve::make_thin_sheet()) as one sheet, 1 (default), or as two tied layers, 0.
