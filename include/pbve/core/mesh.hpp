@@ -112,8 +112,8 @@ std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& vertices,
 /// within it, up to that bound. So a board's two layers are found however finely it is meshed
 /// (a board 1 cm thick has no facing pair within a mean edge of 7 mm), flat or bent. Elsewhere
 /// (an open surface, a thick body) it is the mean edge length; 0 for a mesh without edges of
-/// positive length.
-/// Costs about one opposite_layer_pairs() at the mean edge.
+/// positive length. Costs about one opposite_layer_pairs() per reach it tries: none for an open
+/// surface, one for a closed body whose layers lie within a mean edge or which is not thin.
 double default_layer_reach(const Vertices& vertices, const Triangles& triangles);
 /// The largest mean thickness of a thin closed body, as a fraction of its bounding box's
 /// diagonal, that default_layer_reach() reaches (a board 0.4 x 0.3 m by 1 cm is 2%).
