@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <map>
+#include <unordered_map>
 #include <utility>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -294,21 +297,72 @@ std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& 
     nodes.row(static_cast<Eigen::Index>(i)) = rest.row(s.node_vertex[i]);
   const Vertices normals = sheet_normals(s, nodes);
   s.attachment.assign(static_cast<size_t>(nv), SheetAttachment{});
+  // The closest triangle by rings of cells around the vertex: after ring r every triangle not
+  // yet seen lies at least r cells away, so the search stops once that is beyond the closest
+  // distance found, or beyond 2 * reach (a vertex farther from the sheet fails). Ties go to the
+  // lower triangle index, as over the whole sheet in order. Cells are as wide as the widest
+  // triangle (a triangle meets at most 8), at least reach / 4.
+  double widest = 0.0;
+  for (Eigen::Index t = 0; t < s.triangles.rows(); ++t)
+    for (int k = 0; k < 3; ++k)
+      widest = std::max(widest,
+                        (row3(nodes, s.triangles(t, k)) - row3(nodes, s.triangles(t, (k + 1) % 3)))
+                            .cwiseAbs()
+                            .maxCoeff());
+  const double cell = std::max(widest, 0.25 * reach) * (1.0 + 1e-9);
+  const Vector3d lo = rest.colwise().minCoeff().transpose();
+  auto cell_of = [&](const Vector3d& p) {
+    return Eigen::Vector3i(((p - lo) / cell).array().floor().cast<int>());
+  };
+  auto key = [](const Eigen::Vector3i& c) {
+    return (static_cast<std::int64_t>(c[0]) * 73856093) ^
+           (static_cast<std::int64_t>(c[1]) * 19349663) ^
+           (static_cast<std::int64_t>(c[2]) * 83492791);
+  };
+  std::unordered_map<std::int64_t, std::vector<int>> grid;
+  for (Eigen::Index t = 0; t < s.triangles.rows(); ++t) {
+    Vector3d bmin = row3(nodes, s.triangles(t, 0)), bmax = bmin;
+    for (int k = 1; k < 3; ++k) {
+      bmin = bmin.cwiseMin(row3(nodes, s.triangles(t, k)));
+      bmax = bmax.cwiseMax(row3(nodes, s.triangles(t, k)));
+    }
+    const Eigen::Vector3i c0 = cell_of(bmin), c1 = cell_of(bmax);
+    for (int z = c0[2]; z <= c1[2]; ++z)
+      for (int y = c0[1]; y <= c1[1]; ++y)
+        for (int x = c0[0]; x <= c1[0]; ++x) grid[key({x, y, z})].push_back(static_cast<int>(t));
+  }
+  std::vector<int> seen(static_cast<size_t>(s.triangles.rows()), -1);
   for (int v = 0; v < nv; ++v) {
     if (on_sheet[static_cast<size_t>(v)]) continue;
     const Vector3d x = row3(rest, v);
+    const Eigen::Vector3i c = cell_of(x);
     double best_d2 = std::numeric_limits<double>::infinity();
     SheetAttachment a;
-    for (Eigen::Index t = 0; t < s.triangles.rows(); ++t) {
-      const Vector3d p0 = row3(nodes, s.triangles(t, 0)), p1 = row3(nodes, s.triangles(t, 1)),
-                     p2 = row3(nodes, s.triangles(t, 2));
-      const Vector3d bary = closest_barycentric(x, p0, p1, p2);
-      const double d2 = (bary[0] * p0 + bary[1] * p1 + bary[2] * p2 - x).squaredNorm();
-      if (d2 < best_d2) {
-        best_d2 = d2;
-        a.triangle = static_cast<int>(t);
-        a.bary = bary;
+    auto try_cell = [&](const Eigen::Vector3i& at) {
+      const auto it = grid.find(key(at));
+      if (it == grid.end()) return;
+      for (const int t : it->second) {
+        if (seen[static_cast<size_t>(t)] == v) continue;
+        seen[static_cast<size_t>(t)] = v;
+        const Vector3d p0 = row3(nodes, s.triangles(t, 0)), p1 = row3(nodes, s.triangles(t, 1)),
+                       p2 = row3(nodes, s.triangles(t, 2));
+        const Vector3d bary = closest_barycentric(x, p0, p1, p2);
+        const double d2 = (bary[0] * p0 + bary[1] * p1 + bary[2] * p2 - x).squaredNorm();
+        if (d2 < best_d2 || (d2 == best_d2 && t < a.triangle)) {
+          best_d2 = d2;
+          a.triangle = t;
+          a.bary = bary;
+        }
       }
+    };
+    for (int r = 0;; ++r) {
+      for (int dz = -r; dz <= r; ++dz)
+        for (int dy = -r; dy <= r; ++dy)
+          for (int dx = -r; dx <= r; ++dx)
+            if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) == r)
+              try_cell(c + Eigen::Vector3i(dx, dy, dz));
+      const double beyond = r * cell;
+      if (beyond * beyond > best_d2 || beyond > 2.0 * reach) break;
     }
     if (a.triangle < 0 || !(std::sqrt(best_d2) <= 2.0 * reach)) return std::nullopt;
     s.max_offset = std::max(s.max_offset, std::sqrt(best_d2));

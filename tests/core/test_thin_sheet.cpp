@@ -1,6 +1,9 @@
 // The sheet of a thin closed surface (pbve/core/thin_sheet.hpp): the split of a board into a
 // simulated layer and attached vertices, and the exact Jacobian of an attached vertex's position.
 
+#include <algorithm>
+#include <cmath>
+#include <limits>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -36,6 +39,55 @@ TEST(ThinSheet, ABoardSplitsIntoOneLayerAndAttachedVertices) {
                   .norm(),
               1e-12);
   }
+}
+
+// Distance from p to triangle (a, b, c): to its plane where p projects inside it, else to the
+// nearest of its edges.
+double triangle_distance(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
+                         const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
+  const Eigen::Vector3d n = (b - a).cross(c - a).normalized();
+  const Eigen::Vector3d q = p - (p - a).dot(n) * n;
+  const bool inside = (b - a).cross(q - a).dot(n) >= 0.0 && (c - b).cross(q - b).dot(n) >= 0.0 &&
+                      (a - c).cross(q - c).dot(n) >= 0.0;
+  if (inside) return std::abs((p - a).dot(n));
+  auto segment = [&](const Eigen::Vector3d& u, const Eigen::Vector3d& w) {
+    const double s = std::clamp((p - u).dot(w - u) / (w - u).squaredNorm(), 0.0, 1.0);
+    return (p - (u + s * (w - u))).norm();
+  };
+  return std::min({segment(a, b), segment(b, c), segment(c, a)});
+}
+
+// Every attached vertex hangs from the closest point of the whole sheet (the attachment search
+// looks only near the vertex), on a board meshed finer than its thickness and bent into a half
+// cylinder.
+TEST(ThinSheet, AttachmentsAreTheClosestSheetPoints) {
+  Mesh board = refine_mesh(make_box_mesh(0.40, 0.30, 0.01), 0.012);
+  const double R = 0.4 / 3.14159265358979;
+  for (Eigen::Index i = 0; i < board.vertices.rows(); ++i) {
+    const double theta = board.vertices(i, 0) / R, r = R + board.vertices(i, 2);
+    board.vertices(i, 0) = r * std::sin(theta);
+    board.vertices(i, 2) = r * std::cos(theta);
+  }
+  const auto sheet = make_thin_sheet(board.vertices, board.triangles, 0.015);
+  ASSERT_TRUE(sheet.has_value());
+  const Vertices nodes = node_positions(*sheet, board.vertices);
+  auto node = [&](Eigen::Index t, int k) -> Eigen::Vector3d {
+    return nodes.row(sheet->triangles(t, k)).transpose();
+  };
+  int checked = 0;
+  for (size_t v = 0; v < sheet->vertex_node.size(); ++v) {
+    if (sheet->vertex_node[v] >= 0) continue;
+    const SheetAttachment& a = sheet->attachment[v];
+    const Eigen::Vector3d x = board.vertices.row(static_cast<Eigen::Index>(v)).transpose();
+    const Eigen::Vector3d at = a.bary[0] * node(a.triangle, 0) + a.bary[1] * node(a.triangle, 1) +
+                               a.bary[2] * node(a.triangle, 2);
+    double closest = std::numeric_limits<double>::infinity();
+    for (Eigen::Index t = 0; t < sheet->triangles.rows(); ++t)
+      closest = std::min(closest, triangle_distance(x, node(t, 0), node(t, 1), node(t, 2)));
+    EXPECT_NEAR((x - at).norm(), closest, 1e-12) << "vertex " << v;
+    ++checked;
+  }
+  EXPECT_GT(checked, static_cast<int>(sheet->node_vertex.size()));
 }
 
 TEST(ThinSheet, AttachedPositionJacobianMatchesCentralDifferences) {
