@@ -13,6 +13,7 @@
 
 #include <Eigen/Geometry>
 
+#include "cell_grid.hpp"
 #include "mesh_arrays.hpp"
 #include "pbve/core/error.hpp"
 
@@ -376,29 +377,21 @@ std::vector<std::pair<int, int>> facing_pairs(const Vertices& x,
                                               double reach, bool first_only) {
   using Eigen::Vector3d;
   const int nv = static_cast<int>(x.rows());
-  const Vector3d lo = x.colwise().minCoeff().transpose();
-  auto cell_of = [&](const Vector3d& p) {
-    return Eigen::Vector3i(((p - lo) / reach).array().floor().cast<int>());
-  };
-  auto key = [](const Eigen::Vector3i& c) {
-    return (static_cast<std::int64_t>(c[0]) * 73856093) ^
-           (static_cast<std::int64_t>(c[1]) * 19349663) ^
-           (static_cast<std::int64_t>(c[2]) * 83492791);
-  };
+  const detail::CellGrid cells{x.colwise().minCoeff().transpose(), reach};
   std::unordered_map<std::int64_t, std::vector<int>> grid;
-  for (int i = 0; i < nv; ++i) grid[key(cell_of(row(x, i)))].push_back(i);
+  for (int i = 0; i < nv; ++i) grid[cells.key(cells.cell_of(row(x, i)))].push_back(i);
 
   std::vector<std::pair<int, int>> ties;
   for (int i = 0; i < nv; ++i) {
     const Vector3d p = row(x, i), n = normal[static_cast<size_t>(i)];
     if (!(n.norm() > 0.0)) continue;
-    const Eigen::Vector3i c = cell_of(p);
+    const Eigen::Vector3i c = cells.cell_of(p);
     int best = -1;
     double best_d = reach;
     for (int dz = -1; dz <= 1; ++dz)
       for (int dy = -1; dy <= 1; ++dy)
         for (int dx = -1; dx <= 1; ++dx) {
-          const auto it = grid.find(key(c + Eigen::Vector3i(dx, dy, dz)));
+          const auto it = grid.find(cells.key(c + Eigen::Vector3i(dx, dy, dz)));
           if (it == grid.end()) continue;
           for (int j : it->second) {
             const Vector3d d = row(x, j) - p;

@@ -11,6 +11,8 @@
 
 #include <Eigen/Geometry>
 
+#include "cell_grid.hpp"
+
 namespace pbve {
 
 namespace {
@@ -309,16 +311,8 @@ std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& 
                         (row3(nodes, s.triangles(t, k)) - row3(nodes, s.triangles(t, (k + 1) % 3)))
                             .cwiseAbs()
                             .maxCoeff());
-  const double cell = std::max(widest, 0.25 * reach) * (1.0 + 1e-9);
-  const Vector3d lo = rest.colwise().minCoeff().transpose();
-  auto cell_of = [&](const Vector3d& p) {
-    return Eigen::Vector3i(((p - lo) / cell).array().floor().cast<int>());
-  };
-  auto key = [](const Eigen::Vector3i& c) {
-    return (static_cast<std::int64_t>(c[0]) * 73856093) ^
-           (static_cast<std::int64_t>(c[1]) * 19349663) ^
-           (static_cast<std::int64_t>(c[2]) * 83492791);
-  };
+  const detail::CellGrid cells{rest.colwise().minCoeff().transpose(),
+                               std::max(widest, 0.25 * reach) * (1.0 + 1e-9)};
   std::unordered_map<std::int64_t, std::vector<int>> grid;
   for (Eigen::Index t = 0; t < s.triangles.rows(); ++t) {
     Vector3d bmin = row3(nodes, s.triangles(t, 0)), bmax = bmin;
@@ -326,20 +320,21 @@ std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& 
       bmin = bmin.cwiseMin(row3(nodes, s.triangles(t, k)));
       bmax = bmax.cwiseMax(row3(nodes, s.triangles(t, k)));
     }
-    const Eigen::Vector3i c0 = cell_of(bmin), c1 = cell_of(bmax);
+    const Eigen::Vector3i c0 = cells.cell_of(bmin), c1 = cells.cell_of(bmax);
     for (int z = c0[2]; z <= c1[2]; ++z)
       for (int y = c0[1]; y <= c1[1]; ++y)
-        for (int x = c0[0]; x <= c1[0]; ++x) grid[key({x, y, z})].push_back(static_cast<int>(t));
+        for (int x = c0[0]; x <= c1[0]; ++x)
+          grid[cells.key({x, y, z})].push_back(static_cast<int>(t));
   }
   std::vector<int> seen(static_cast<size_t>(s.triangles.rows()), -1);
   for (int v = 0; v < nv; ++v) {
     if (on_sheet[static_cast<size_t>(v)]) continue;
     const Vector3d x = row3(rest, v);
-    const Eigen::Vector3i c = cell_of(x);
+    const Eigen::Vector3i c = cells.cell_of(x);
     double best_d2 = std::numeric_limits<double>::infinity();
     SheetAttachment a;
     auto try_cell = [&](const Eigen::Vector3i& at) {
-      const auto it = grid.find(key(at));
+      const auto it = grid.find(cells.key(at));
       if (it == grid.end()) return;
       for (const int t : it->second) {
         if (seen[static_cast<size_t>(t)] == v) continue;
@@ -361,7 +356,7 @@ std::optional<ThinSheet> make_thin_sheet(const Vertices& rest, const Triangles& 
           for (int dx = -r; dx <= r; ++dx)
             if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) == r)
               try_cell(c + Eigen::Vector3i(dx, dy, dz));
-      const double beyond = r * cell;
+      const double beyond = r * cells.size;
       if (beyond * beyond > best_d2 || beyond > 2.0 * reach) break;
     }
     if (a.triangle < 0 || !(std::sqrt(best_d2) <= 2.0 * reach)) return std::nullopt;
