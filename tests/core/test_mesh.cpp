@@ -958,43 +958,35 @@ TEST(MeshLayers, DefaultReachIsTheMeanEdgeWhereItFindsTheLayers) {
   EXPECT_NEAR(default_layer_reach(board.vertices, board.triangles), mean, 1e-12 * mean);
 }
 
-// The same board meshed finer than its thickness (mean edge about 5 mm): no facing pair lies
-// within the mean edge, so the reach doubles until the layers, 1 cm apart, are found; the
-// board then splits into one sheet.
-TEST(MeshLayers, DefaultReachFindsTheLayersOfAFinelyMeshedBoard) {
-  const Mesh board = refine_mesh(make_box_mesh(0.4, 0.3, 0.01), 0.007);
+// No facing pair of `board` (1 cm thick) lies within its mean edge; the default reach is the
+// first doubling of the mean edge at which one does, and the board then splits into one sheet.
+void expect_layers_found_by_doubling(const Mesh& board) {
   const double mean = mean_edge(board);
-  ASSERT_LT(mean, 0.01);
   ASSERT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, mean).empty());
   const double reach = default_layer_reach(board.vertices, board.triangles);
   EXPECT_GE(reach, 0.01);
-  // A doubling of the mean edge: the first at which pairs appear.
   const double doublings = std::log2(reach / mean);
   EXPECT_NEAR(doublings, std::round(doublings), 1e-9);
   EXPECT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, reach / 2).empty());
   EXPECT_FALSE(opposite_layer_pairs(board.vertices, board.triangles, reach).empty());
   EXPECT_TRUE(make_thin_sheet(board.vertices, board.triangles, reach).has_value());
-  EXPECT_FALSE(make_thin_sheet(board.vertices, board.triangles, mean).has_value());
+}
+
+// The same board meshed finer than its thickness (mean edge about 5 mm): its layers are not
+// within a mean edge (no sheet there) but within a doubling of it.
+TEST(MeshLayers, DefaultReachFindsTheLayersOfAFinelyMeshedBoard) {
+  const Mesh board = refine_mesh(make_box_mesh(0.4, 0.3, 0.01), 0.007);
+  ASSERT_LT(mean_edge(board), 0.01);
+  expect_layers_found_by_doubling(board);
+  EXPECT_FALSE(make_thin_sheet(board.vertices, board.triangles, mean_edge(board)).has_value());
 }
 
 // The fine board bent into a half cylinder, faces still 1 cm apart: a thin closed body too
 // (its mean thickness, 2 V / A, is about 1 cm), so its layers are found as on the flat board.
 TEST(MeshLayers, DefaultReachFindsTheLayersOfABentBoard) {
   Mesh board = refine_mesh(make_box_mesh(0.4, 0.3, 0.01), 0.007);
-  const double R = 0.4 / 3.14159265358979;
-  for (Eigen::Index i = 0; i < board.vertices.rows(); ++i) {
-    const double theta = board.vertices(i, 0) / R, r = R + board.vertices(i, 2);
-    board.vertices(i, 0) = r * std::sin(theta);
-    board.vertices(i, 2) = r * std::cos(theta);
-  }
-  const double mean = mean_edge(board);
-  ASSERT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, mean).empty());
-  const double reach = default_layer_reach(board.vertices, board.triangles);
-  EXPECT_GE(reach, 0.01);
-  const double doublings = std::log2(reach / mean);
-  EXPECT_NEAR(doublings, std::round(doublings), 1e-9);
-  EXPECT_TRUE(opposite_layer_pairs(board.vertices, board.triangles, reach / 2).empty());
-  EXPECT_TRUE(make_thin_sheet(board.vertices, board.triangles, reach).has_value());
+  board.vertices = test::bent_about_y(board.vertices, 0.4 / 3.14159265358979);
+  expect_layers_found_by_doubling(board);
 }
 
 // Nothing faces across a ball within 5% of its bounding box's diagonal (0.017 m against a

@@ -10,6 +10,7 @@
 
 #include "pbve/core/thin_sheet.hpp"
 #include "pbve/edit/synth.hpp"
+#include "support/test_util.hpp"
 
 namespace pbve {
 namespace {
@@ -62,12 +63,7 @@ double triangle_distance(const Eigen::Vector3d& p, const Eigen::Vector3d& a,
 // cylinder.
 TEST(ThinSheet, AttachmentsAreTheClosestSheetPoints) {
   Mesh board = refine_mesh(make_box_mesh(0.40, 0.30, 0.01), 0.012);
-  const double R = 0.4 / 3.14159265358979;
-  for (Eigen::Index i = 0; i < board.vertices.rows(); ++i) {
-    const double theta = board.vertices(i, 0) / R, r = R + board.vertices(i, 2);
-    board.vertices(i, 0) = r * std::sin(theta);
-    board.vertices(i, 2) = r * std::cos(theta);
-  }
+  board.vertices = test::bent_about_y(board.vertices, 0.4 / 3.14159265358979);
   const auto sheet = make_thin_sheet(board.vertices, board.triangles, 0.015);
   ASSERT_TRUE(sheet.has_value());
   const Vertices nodes = node_positions(*sheet, board.vertices);

@@ -2,6 +2,7 @@
 // Helpers shared by the tests.
 
 #include <unistd.h>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -9,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "pbve/core/camera.hpp"
+#include "pbve/core/mesh.hpp"
 
 namespace pbve::test {
 
@@ -59,6 +61,18 @@ inline Camera centred_camera(int width, int height, double f) {
 /// Directory of checked-in test data (tests/data).
 inline std::filesystem::path data_dir() {
   return PBVE_TEST_DATA_DIR;
+}
+
+/// `v` bent about the y axis onto a cylinder of radius `radius` through z = 0: x becomes the arc
+/// length, z the distance outwards from the cylinder (a board bent without stretching its
+/// middle surface).
+inline Vertices bent_about_y(Vertices v, double radius) {
+  for (Eigen::Index i = 0; i < v.rows(); ++i) {
+    const double theta = v(i, 0) / radius, r = radius + v(i, 2);
+    v(i, 0) = r * std::sin(theta);
+    v(i, 2) = r * std::cos(theta);
+  }
+  return v;
 }
 
 }  // namespace pbve::test
