@@ -295,6 +295,18 @@ BENCHMARK(BM_BoardStep)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_BoardVjp)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_BoardVjpReplay)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_BoardLinearize)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_BoardLinearJvpVjp)->Arg(0)->Arg(1000)->Arg(4000)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BoardLinearize)
+    ->Arg(0)
+    ->Arg(1000)
+    ->Arg(4000)
+    ->Arg(8000)
+    ->Arg(16000)
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BoardLinearJvpVjp)
+    ->Arg(0)
+    ->Arg(1000)
+    ->Arg(4000)
+    ->Arg(8000)
+    ->Arg(16000)
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK_MAIN();
