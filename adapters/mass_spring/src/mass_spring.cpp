@@ -1303,16 +1303,25 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
     m_lag.resize(static_cast<size_t>(S));
     m_blocks.resize(static_cast<size_t>(S));
     m_factor.resize(static_cast<size_t>(S));
+    // The substeps' matrices are assembled in turn (into the simulator's J), then factorized
+    // in parallel (each factorization is the same bits in any thread).
+    std::vector<Eigen::SparseMatrix<double>> jacobians(static_cast<size_t>(S));
     for (int s = 0; s < S; ++s) {
       const auto k = static_cast<size_t>(s);
       m_sim.make_lag(m_sim.tape.xs[k], m_sim.tape.vs[k], in.control, m_lag[k]);
       m_sim.exact_blocks(m_sim.tape.xs[k + 1], m_lag[k], m_h, m_blocks[k]);
       if (m.free_nodes.empty()) continue;
       m_sim.assemble(m_sim.tape.xs[k + 1], m_lag[k], m_h, true);
+      jacobians[k] = m_sim.J;
       m_factor[k] = m.factor_pool->take(m_sim.analysis());
-      if (!m_factor[k]->factorize(m_sim.J))
-        throw std::runtime_error("mass_spring: singular system in linearize_step");
     }
+    if (m.free_nodes.empty()) return;
+    std::vector<char> factorized(static_cast<size_t>(S), 0);
+    tbb::parallel_for(size_t{0}, static_cast<size_t>(S), [&](size_t k) {
+      factorized[k] = m_factor[k]->factorize(jacobians[k]) ? 1 : 0;
+    });
+    for (char ok : factorized)
+      if (!ok) throw std::runtime_error("mass_spring: singular system in linearize_step");
   }
 
   ~Linear() override {
