@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <random>
 #include <thread>
@@ -97,6 +98,7 @@ TEST(MassSpringSolvers, CholeskySolvesAndIsReproducible) {
   const SparseMatrix<double> A = sheet_matrix(30, 0.02, x0);
   auto analysis = std::make_shared<const pbve::mass_spring::detail::CholeskyAnalysis>(A);
   EXPECT_GT(analysis->factor_nonzeros(), static_cast<double>(A.nonZeros()) / 2);
+  EXPECT_FALSE(analysis->splits_solves());  // small: CHOLMOD's own solve
   pbve::mass_spring::detail::SparseCholesky a(analysis), b(analysis);
   ASSERT_TRUE(a.factorize(A));
   ASSERT_TRUE(b.factorize(A));
@@ -118,6 +120,31 @@ TEST(MassSpringSolvers, CholeskySolvesAndIsReproducible) {
   EXPECT_FALSE(a.factorize(shifted));
   EXPECT_FALSE(a.valid());
   EXPECT_TRUE(a.factorize(A));  // and the factor is usable again
+}
+
+// A factor of more than a million entries (a 64 x 64 sheet, 12 288 unknowns): its triangular
+// solves run in two parallel parts of the elimination tree, then the separators above them.
+// The solve is backward stable like any Cholesky solve: the residual is within a small multiple
+// of the unit round-off times |A| |x|. The parts' order is fixed, so one thread gives the same
+// bits as two.
+TEST(MassSpringSolvers, LargeCholeskySolvesInTwoParallelParts) {
+  VectorXd x0;
+  const SparseMatrix<double> A = sheet_matrix(64, 0.02, x0);
+  auto analysis = std::make_shared<const pbve::mass_spring::detail::CholeskyAnalysis>(A);
+  ASSERT_TRUE(analysis->splits_solves()) << analysis->factor_nonzeros() << " factor entries";
+  pbve::mass_spring::detail::SparseCholesky a(analysis), b(analysis);
+  ASSERT_TRUE(a.factorize(A));
+  ASSERT_TRUE(b.factorize(A));
+  for (unsigned seed : {3u, 4u}) {
+    const VectorXd rhs = random_vector(A.rows(), seed);
+    VectorXd xa, xb;
+    a.solve(rhs, xa);
+    const double backward_error = (A * xa - rhs).norm() / (A.norm() * xa.norm() + rhs.norm());
+    EXPECT_LT(backward_error, 100 * std::numeric_limits<double>::epsilon());
+    tbb::task_arena one_thread(1);
+    one_thread.execute([&] { b.solve(rhs, xb); });
+    EXPECT_TRUE(bit_equal_vectors(xa, xb));
+  }
 }
 
 // The stiffness graph of sheet_matrix(): k = 2000 N/m between 8-neighbours.
@@ -447,6 +474,40 @@ TEST(MassSpringSolvers, AStepDoesNotDependOnTheThreadCount) {
   EXPECT_TRUE(bit_equal(two, sim.positions()));
   // And the step moved the cloth: the comparison is not between two unchanged states.
   EXPECT_GT((two - pbve::Vertices(mesh.vertices)).cwiseAbs().maxCoeff(), 1e-3);
+}
+
+TEST(MassSpringSolvers, ALinearizationDoesNotDependOnTheThreadCount) {
+  // The same 64 x 64 cloth: linearize_step() factorizes its substeps' matrices in parallel, and
+  // their factors (12 288 unknowns, over a million entries) are solved in two parallel parts of
+  // the elimination tree. One thread must give the same bits in jvp() and vjp().
+  const int n = 64;
+  const pbve::Mesh mesh = pbve::test::grid_mesh(n, 1.0);
+  Params p = Params::preset(Material::cloth);
+  p.substeps = 3;
+  MassSpringSimulator sim(mesh, {0, n - 1}, p);
+  StepInput in;
+  in.control = 1e-3 * random_vector(3 * sim.num_vertices(), 6);
+  sim.step(in);
+  const SimState s0 = sim.save();
+  sim.step(in);
+  const VectorXd du = random_vector(in.control.size(), 7);
+  const VectorXd g = random_vector(sim.state_dim(), 8);
+  const auto two = sim.linearize_step(s0, in);
+  const VectorXd jvp_two = two->jvp(VectorXd(), du);
+  const pbve::StepVjp vjp_two = two->vjp(g);
+  VectorXd jvp_one;
+  pbve::StepVjp vjp_one;
+  tbb::task_arena one(1);
+  one.execute([&] {
+    const auto lin = sim.linearize_step(s0, in);
+    jvp_one = lin->jvp(VectorXd(), du);
+    vjp_one = lin->vjp(g);
+  });
+  EXPECT_TRUE(bit_equal_vectors(jvp_two, jvp_one));
+  EXPECT_TRUE(bit_equal_vectors(vjp_two.state, vjp_one.state));
+  EXPECT_TRUE(bit_equal_vectors(vjp_two.control, vjp_one.control));
+  EXPECT_GT(jvp_two.norm(), 0.0);  // the products are not trivially equal
+  EXPECT_GT(vjp_two.control.norm(), 0.0);
 }
 
 TEST(MassSpringSolvers, TheAutomaticChoiceFactorizesOnlyUpToItsLimit) {

@@ -31,6 +31,9 @@ class CholeskyAnalysis {
   /// Nonzeros of the factor L and flops of one numeric factorization (CHOLMOD's estimates).
   double factor_nonzeros() const;
   double factor_flops() const;
+  /// Whether solves with the LL^T factor run in two parallel parts of the elimination tree
+  /// (large factors; the same bits whether the parts run in parallel or in turn).
+  bool splits_solves() const;
 
   struct Impl;
   const Impl& impl() const { return *m_impl; }
@@ -64,11 +67,13 @@ class SparseCholesky {
   bool empty() const { return !m_analysis; }
   Kind kind() const { return m_kind; }
   /// x = A^-1 b for the last successfully factorized A. Uses this object's workspace: one call
-  /// at a time per object.
+  /// at a time per object. LL^T on a large factor: the triangular solves run over the supernodes
+  /// in two parallel parts (CholeskyAnalysis::splits_solves()); else CHOLMOD solves.
   void solve(const Eigen::VectorXd& b, Eigen::VectorXd& x) const;
 
  private:
   struct Numeric;
+  void split_solve(const Eigen::VectorXd& b, Eigen::VectorXd& x) const;
   std::shared_ptr<const CholeskyAnalysis> m_analysis;
   Kind m_kind = Kind::llt;
   std::unique_ptr<Numeric> m_numeric;
