@@ -122,28 +122,44 @@ TEST(MassSpringSolvers, CholeskySolvesAndIsReproducible) {
   EXPECT_TRUE(a.factorize(A));  // and the factor is usable again
 }
 
-// A factor of more than a million entries (a 64 x 64 sheet, 12 288 unknowns): its triangular
-// solves run in two parallel parts of the elimination tree, then the separators above them.
-// The solve is backward stable like any Cholesky solve: the residual is within a small multiple
-// of the unit round-off times |A| |x|. The parts' order is fixed, so one thread gives the same
-// bits as two.
+// A factor of more than a million entries: its triangular solves run in two parallel parts of
+// the elimination tree, then the separators above them. Two cases: a 64 x 64 sheet (12 288
+// unknowns, one tree: the parts are subtrees below its top separators) and two separate 48 x 48
+// sheets (two trees, one per part, no separator above them). The solve is backward stable like
+// any Cholesky solve: the residual is within a small multiple of the unit round-off times
+// |A| |x|. The parts' order is fixed, so one thread gives the same bits as two.
 TEST(MassSpringSolvers, LargeCholeskySolvesInTwoParallelParts) {
   VectorXd x0;
-  const SparseMatrix<double> A = sheet_matrix(64, 0.02, x0);
-  auto analysis = std::make_shared<const pbve::mass_spring::detail::CholeskyAnalysis>(A);
-  ASSERT_TRUE(analysis->splits_solves()) << analysis->factor_nonzeros() << " factor entries";
-  pbve::mass_spring::detail::SparseCholesky a(analysis), b(analysis);
-  ASSERT_TRUE(a.factorize(A));
-  ASSERT_TRUE(b.factorize(A));
-  for (unsigned seed : {3u, 4u}) {
-    const VectorXd rhs = random_vector(A.rows(), seed);
-    VectorXd xa, xb;
-    a.solve(rhs, xa);
-    const double backward_error = (A * xa - rhs).norm() / (A.norm() * xa.norm() + rhs.norm());
-    EXPECT_LT(backward_error, 100 * std::numeric_limits<double>::epsilon());
-    tbb::task_arena one_thread(1);
-    one_thread.execute([&] { b.solve(rhs, xb); });
-    EXPECT_TRUE(bit_equal_vectors(xa, xb));
+  const SparseMatrix<double> one_sheet = sheet_matrix(64, 0.02, x0);
+  const SparseMatrix<double> half = sheet_matrix(48, 0.02, x0);
+  SparseMatrix<double> two_sheets(2 * half.rows(), 2 * half.cols());
+  {
+    std::vector<Eigen::Triplet<double>> t;
+    for (int k = 0; k < half.outerSize(); ++k)
+      for (SparseMatrix<double>::InnerIterator it(half, k); it; ++it) {
+        t.emplace_back(it.row(), it.col(), it.value());
+        t.emplace_back(it.row() + half.rows(), it.col() + half.cols(), it.value());
+      }
+    two_sheets.setFromTriplets(t.begin(), t.end());
+    two_sheets.makeCompressed();
+  }
+  const SparseMatrix<double>* cases[] = {&one_sheet, &two_sheets};
+  for (const SparseMatrix<double>* A : cases) {
+    auto analysis = std::make_shared<const pbve::mass_spring::detail::CholeskyAnalysis>(*A);
+    ASSERT_TRUE(analysis->splits_solves()) << analysis->factor_nonzeros() << " factor entries";
+    pbve::mass_spring::detail::SparseCholesky a(analysis), b(analysis);
+    ASSERT_TRUE(a.factorize(*A));
+    ASSERT_TRUE(b.factorize(*A));
+    for (unsigned seed : {3u, 4u}) {
+      const VectorXd rhs = random_vector(A->rows(), seed);
+      VectorXd xa, xb;
+      a.solve(rhs, xa);
+      const double backward_error = (*A * xa - rhs).norm() / (A->norm() * xa.norm() + rhs.norm());
+      EXPECT_LT(backward_error, 100 * std::numeric_limits<double>::epsilon());
+      tbb::task_arena one_thread(1);
+      one_thread.execute([&] { b.solve(rhs, xb); });
+      EXPECT_TRUE(bit_equal_vectors(xa, xb));
+    }
   }
 }
 
