@@ -349,7 +349,7 @@ class WindowProblem {
       m_sim.step(input(k, u[static_cast<size_t>(k)]));
       if (k == 0) {
         m_snapshot.state = m_sim.save();
-        m_snapshot.physical = m_sim.physical_force_magnitudes();
+        m_snapshot.physical = checked_force_magnitudes(m_sim);
         m_snapshot.valid = true;
       }
       positions.push_back(m_sim.positions());
@@ -908,7 +908,7 @@ std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
     mark(k, x);
     if (predicted) predicted->push_back(x);
     if (k == 0 && first) *first = sim.save();
-    if (k == 0 && first_physical) *first_physical = sim.physical_force_magnitudes();
+    if (k == 0 && first_physical) *first_physical = checked_force_magnitudes(sim);
   }
   sim.restore(s0);
   // k-ring growth.
@@ -1043,6 +1043,7 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
 ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
                                                        const ControlFrameInput& frame) {
   const auto t0 = Clock::now();
+  check_simulator(sim);
   capture_reference(sim);
   const ControlLayout layout = sim.control_layout();
   ControlFrameResult r;
@@ -1060,7 +1061,7 @@ ControlFrameResult ControlOptimizer::step_uncontrolled(Simulator& sim,
              m_options.weights.force * r.force_energy +
              m_options.weights.temporal * r.temporal_energy;
   r.initial_energy = r.final_energy = r.energy;
-  r.physical_force = free_force_sum(sim, sim.physical_force_magnitudes());
+  r.physical_force = free_force_sum(sim, checked_force_magnitudes(sim));
   m_previous = r.control;
   r.total_ms = ms_since(t0);
   return r;
@@ -1073,6 +1074,7 @@ void ControlOptimizer::capture_reference(const Simulator& sim) {
 ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const ControlFrameInput> window,
                                           const ControlCallbacks& callbacks) {
   const auto t_start = Clock::now();
+  check_simulator(sim);
   capture_reference(sim);
   const int frames = window_frames(m_options, window);
   const GradientMode mode = resolve_gradient(sim, m_options.gradient);
@@ -1320,7 +1322,7 @@ ControlFrameResult ControlOptimizer::step(Simulator& sim, std::span<const Contro
   } else {
     sim.restore(problem.state0());
     sim.step(problem.input(0, u[0]));
-    physical = sim.physical_force_magnitudes();
+    physical = checked_force_magnitudes(sim);
   }
   r.control = u[0];
   r.visibility_energy = problem.visibility(0, sim.positions(), nullptr);

@@ -223,7 +223,7 @@ double step_subdivided(Simulator& sim, const Eigen::VectorXd& control,
       in.anchor_targets = (1.0 - s) * a0 + s * frame.anchor_targets;
     }
     sim.step(in);
-    const Eigen::VectorXd f = sim.physical_force_magnitudes();
+    const Eigen::VectorXd f = checked_force_magnitudes(sim);
     for (Eigen::Index v = 0; v < f.size(); ++v)
       if (!anchored[static_cast<size_t>(v)]) physical += f[v];
   }
@@ -410,6 +410,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     rethrow_engine_error(e, scene);
   }
   report.engine = sim->name();
+  check_simulator(*sim);
   if (sim->num_vertices() != mesh.num_vertices())
     throw std::logic_error("the simulator has " + std::to_string(sim->num_vertices()) +
                            " surface vertices, the mesh " + std::to_string(mesh.num_vertices()));

@@ -96,7 +96,9 @@ class StepLinearization {
 /// - restore(save()) followed by the same steps reproduces positions bit for bit;
 /// - clone() is independent and steps identically;
 /// - a force f on a free block of mass m accelerates it by f / m;
-/// - wrong sizes throw std::invalid_argument; a legal step never produces NaN.
+/// - wrong sizes throw std::invalid_argument; a legal step never produces NaN;
+/// - a simulator and its clones share no mutable state: each may be stepped on its own thread
+///   at the same time as the others (the optimizer steps clones in parallel).
 class Simulator {
  public:
   virtual ~Simulator() = default;
@@ -174,5 +176,17 @@ class Simulator {
   virtual std::unique_ptr<StepLinearization> linearize_step(const SimState& before,
                                                             const StepInput& in);
 };
+
+/// Checks the sizes and indices pbve relies on beyond the types (the editor and
+/// ControlOptimizer call it before using an engine): positions() and velocities() have
+/// num_vertices() rows; anchors() are sorted, distinct surface vertices; the control layout has
+/// block_mass (and block_arm, unless empty) with one entry per block and vertex_block with one
+/// entry per surface vertex, each -1 or a block. Throws std::logic_error naming the engine and
+/// the first violation.
+void check_simulator(const Simulator& sim);
+
+/// sim.physical_force_magnitudes(), checked to have one entry per surface vertex, none
+/// negative (throws std::logic_error naming the engine otherwise).
+Eigen::VectorXd checked_force_magnitudes(const Simulator& sim);
 
 }  // namespace pbve

@@ -16,13 +16,16 @@
 /// block. Each property is also available as a function returning ::testing::AssertionResult
 /// (check_save_restore(), ...), so a test can show that a deliberately broken adapter fails it.
 ///
-/// Properties checked: exact save/restore replay, restore into a clone, clone equivalence
-/// and independence, anchors exactly at their targets after every step, f = m a for a
-/// small force on a free block, determinism of two fresh instances, no NaN under a large but
-/// legal step, std::invalid_argument on wrong sizes, and — when the adapter offers
-/// derivatives — step_vjp() against central differences.
+/// Properties checked: the sizes and indices of pbve::check_simulator(), exact save/restore
+/// replay, restore into a clone, clone equivalence and independence (also stepped in parallel
+/// on two threads), anchors exactly at their targets after every step, f = m a (displacement
+/// and velocity) for a small force on a free block, physical forces of the right size and zero
+/// on anchors, determinism of two fresh instances, no NaN under a large but legal step,
+/// std::invalid_argument on wrong sizes, and — when the adapter offers derivatives —
+/// step_vjp() against central differences.
 
 #include <cmath>
+#include <exception>
 #include <functional>
 #include <memory>
 #include <ostream>
@@ -30,6 +33,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -50,7 +54,8 @@ struct ConformanceCase {
   double fma_dt = 1e-4;
   int fma_steps = 20;
   /// Relative tolerance of the f = m a check. A first-order integrator over N steps from rest
-  /// gives N(N+1)/2 h^2 a instead of N^2 h^2 a / 2: a relative error of 1/N.
+  /// gives N(N+1)/2 h^2 a instead of N^2 h^2 a / 2: a relative error of 1/N. The velocity,
+  /// a T, gets twice this tolerance (see check_force_mass()).
   double fma_tolerance = 0.1;
   double large_dt = 0.25;       ///< a large but legal step for the NaN check, s
   double vjp_tolerance = 1e-4;  ///< relative error of step_vjp() against central differences
@@ -143,20 +148,20 @@ inline int free_block(const Simulator& sim, int* vertex) {
 
 }  // namespace detail
 
-/// Sanity of the factory's simulator: sizes agree, finite positions, at least one anchor.
+/// Sanity of the factory's simulator: pbve::check_simulator() (sizes, sorted distinct anchors
+/// in range, a consistent control layout), finite positions, positive block masses, at rest,
+/// at least one anchor and one free block.
 inline ::testing::AssertionResult check_layout(const ConformanceCase& c) {
   auto sim = c.make();
   const int n = sim->num_vertices();
-  const ControlLayout layout = sim->control_layout();
   if (n <= 0) return ::testing::AssertionFailure() << "no surface vertices";
-  if (sim->positions().rows() != n || sim->velocities().rows() != n)
-    return ::testing::AssertionFailure() << "positions()/velocities() rows != num_vertices()";
+  try {
+    check_simulator(*sim);
+  } catch (const std::logic_error& e) {
+    return ::testing::AssertionFailure() << e.what();
+  }
+  const ControlLayout layout = sim->control_layout();
   if (!sim->positions().allFinite()) return ::testing::AssertionFailure() << "non-finite positions";
-  if (static_cast<int>(layout.vertex_block.size()) != n)
-    return ::testing::AssertionFailure()
-           << "vertex_block has " << layout.vertex_block.size() << " entries, expected " << n;
-  if (layout.block_mass.size() != layout.num_blocks)
-    return ::testing::AssertionFailure() << "block_mass size != num_blocks";
   for (int b = 0; b < layout.num_blocks; ++b)
     if (!(layout.block_mass(b) > 0.0))
       return ::testing::AssertionFailure() << "block " << b << " has mass " << layout.block_mass(b);
@@ -248,7 +253,6 @@ inline ::testing::AssertionResult check_force_mass(const ConformanceCase& c) {
   in.control.segment<3>(block * layout.block_size()) = m * accel;
   StepInput zero = in;
   zero.control.setZero();
-  const Vertices p0 = with->positions();
   for (int k = 0; k < c.fma_steps; ++k) {
     with->step(in);
     without->step(zero);
@@ -263,8 +267,79 @@ inline ::testing::AssertionResult check_force_mass(const ConformanceCase& c) {
            << "block " << block << " (vertex " << vertex << ", mass " << m << " kg): extra "
            << "displacement " << d.transpose() << " m, expected " << expected.transpose()
            << " m (relative error " << err << " > " << c.fma_tolerance << ")";
-  (void)p0;
+  // The extra velocity is a T: exact for symplectic and backward Euler from rest, whatever the
+  // number of steps, up to the elastic forces of the displaced block. Those lower it twice as
+  // much as the displacement (a block of natural frequency w pushed from rest: v = (a / w)
+  // sin wT = a T (1 - (wT)^2 / 6 + ...), x = a T^2 / 2 (1 - (wT)^2 / 12 + ...)), hence twice
+  // the tolerance.
+  const Eigen::Vector3d dv =
+      (with->velocities().row(vertex) - without->velocities().row(vertex)).transpose();
+  const Eigen::Vector3d expected_v = accel * T;
+  const double err_v = (dv - expected_v).norm() / expected_v.norm();
+  if (!(err_v <= 2.0 * c.fma_tolerance))
+    return ::testing::AssertionFailure()
+           << "block " << block << " (vertex " << vertex << ", mass " << m << " kg): extra "
+           << "velocity " << dv.transpose() << " m/s, expected " << expected_v.transpose()
+           << " m/s (relative error " << err_v << " > " << 2.0 * c.fma_tolerance << ")";
   return ::testing::AssertionSuccess();
+}
+
+/// After each step: physical_forces() is #V by 3 and finite, physical_force_magnitudes() has
+/// one finite, non-negative entry per surface vertex, and both are zero on anchored vertices.
+inline ::testing::AssertionResult check_physical_forces(const ConformanceCase& c) {
+  auto sim = c.make();
+  const Vertices rest = detail::anchor_positions(*sim);
+  const std::vector<int> anchors = sim->anchors();
+  for (int k = 0; k < c.steps; ++k) {
+    sim->step(detail::make_input(*sim, rest, k, c.dt, 13u));
+    const Vertices f = sim->physical_forces();
+    if (f.rows() != sim->num_vertices() || !f.allFinite())
+      return ::testing::AssertionFailure()
+             << "step " << k << ": physical_forces() has " << f.rows() << " rows for "
+             << sim->num_vertices() << " vertices" << (f.allFinite() ? "" : ", not all finite");
+    Eigen::VectorXd mag;
+    try {
+      mag = checked_force_magnitudes(*sim);
+    } catch (const std::logic_error& e) {
+      return ::testing::AssertionFailure() << "step " << k << ": " << e.what();
+    }
+    if (!mag.allFinite())
+      return ::testing::AssertionFailure()
+             << "step " << k << ": physical_force_magnitudes() not all finite";
+    for (int a : anchors)
+      if (f.row(a).norm() != 0.0 || mag[a] != 0.0)
+        return ::testing::AssertionFailure()
+               << "step " << k << ": anchored vertex " << a << " has physical force " << f.row(a)
+               << " (magnitude " << mag[a] << "), expected zero";
+  }
+  return ::testing::AssertionSuccess();
+}
+
+/// A simulator's clones, stepped at the same time on two threads, give the same bits as the
+/// simulator stepped alone (no mutable state shared between clones). A data race need not show
+/// in every run, so a pass is evidence, not proof; a failure is a real defect.
+inline ::testing::AssertionResult check_clones_in_parallel(const ConformanceCase& c) {
+  auto sim = c.make();
+  const Vertices rest = detail::anchor_positions(*sim);
+  detail::run(*sim, rest, 0, 2, c.dt);
+  auto a = sim->clone();
+  auto b = sim->clone();
+  const Vertices alone = detail::run(*sim, rest, 30, c.steps, c.dt);
+  Vertices pa, pb;
+  std::exception_ptr error;
+  std::thread other([&] {
+    try {
+      pb = detail::run(*b, rest, 30, c.steps, c.dt);
+    } catch (...) {
+      error = std::current_exception();
+    }
+  });
+  pa = detail::run(*a, rest, 30, c.steps, c.dt);
+  other.join();
+  if (error) std::rethrow_exception(error);
+  auto r = detail::bit_equal(alone, pa, "a clone stepped while another clone steps on a thread");
+  if (!r) return r;
+  return detail::bit_equal(alone, pb, "a clone stepped on a thread while another clone steps");
 }
 
 /// Two fresh instances fed the same inputs give identical results.
@@ -390,6 +465,12 @@ TEST_P(SimulatorConformance, AnchorsExactlyAtTargets) {
 }
 TEST_P(SimulatorConformance, ForceEqualsMassTimesAcceleration) {
   EXPECT_TRUE(check_force_mass(GetParam()));
+}
+TEST_P(SimulatorConformance, PhysicalForcesHaveOneRowPerVertex) {
+  EXPECT_TRUE(check_physical_forces(GetParam()));
+}
+TEST_P(SimulatorConformance, ClonesStepInParallel) {
+  EXPECT_TRUE(check_clones_in_parallel(GetParam()));
 }
 TEST_P(SimulatorConformance, Deterministic) {
   EXPECT_TRUE(check_determinism(GetParam()));
