@@ -208,6 +208,7 @@ int run_bench(const std::vector<std::string>& argv) {
   const double load_before = load_average();
   const SynthOutput clip = synthesize(so, work);
   const Scene base = load_scene(clip.scene);
+  check_engine(base);
   const Mesh mesh = load_mesh(clip.mesh);
 
   json runs = json::array();

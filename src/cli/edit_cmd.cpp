@@ -96,6 +96,7 @@ int run_edit(const std::vector<std::string>& argv) {
   if (pos.size() != 1) throw UsageError("expected one scene file");
 
   const Scene scene = load_scene(pos[0]);
+  check_engine(scene);
   const bool tty = ::isatty(STDERR_FILENO) != 0;
   EditCallbacks cb;
   cb.make_simulator = [](const EngineRecipe& r) { return make_engine(r); };

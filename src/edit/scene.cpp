@@ -323,7 +323,19 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       const YAML::Node& v = kv.second;
       r.note(key, kv.first);
       if (k == "engine") {
-        s.simulation.engine = r.choice(v, key, {"mass_spring", "bullet"});
+        // Any engine name: the built-in ones (pbve::make_engine() checks which this build
+        // has) or an adapter of the program's own, which its factory selects by this name.
+        const std::string name = r.string(v, key);
+        const bool identifier =
+            std::isalpha(static_cast<unsigned char>(name[0])) != 0 &&
+            std::all_of(name.begin(), name.end(), [](char ch) {
+              return std::isalnum(static_cast<unsigned char>(ch)) != 0 || ch == '_';
+            });
+        if (!identifier)
+          r.fail(v, key,
+                 "expected an engine name (a letter, then letters, digits or '_'), found '" + name +
+                     "'");
+        s.simulation.engine = name;
       } else if (k == "material") {
         s.simulation.material = r.choice(v, key, {"cloth", "elastic", "stiff", "rigid"});
       } else if (k == "gravity") {

@@ -4,6 +4,7 @@
 
 #include "pbve/core/error.hpp"
 #include "pbve/edit/scene.hpp"
+#include "pbve/engines.hpp"
 #include "support/test_util.hpp"
 
 namespace {
@@ -122,6 +123,44 @@ TEST(SceneErrors, UnknownSolverSuggests) {
   EXPECT_NE(e.find(":21:"), std::string::npos) << e;
   EXPECT_NE(e.find("control.solver"), std::string::npos) << e;
   EXPECT_NE(e.find("did you mean 'slsqp'"), std::string::npos) << e;
+}
+
+TEST(Scene, AnyEngineNameForAProgramsOwnAdapter) {
+  // A program's own adapter is selected by its name (its make_simulator reads it); the pbve
+  // command checks the name against the engines built in, at the key's line.
+  std::string text = kFull;
+  text.replace(text.find("mass_spring"), 11, "spring_particles");
+  const pbve::Scene s = parse_scene(text, "/scenes/s.yaml");
+  EXPECT_EQ(s.simulation.engine, "spring_particles");
+  try {
+    pbve::check_engine(s);
+    ADD_FAILURE() << "no error for an engine that is not built in";
+  } catch (const InputError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("/scenes/s.yaml:11"), std::string::npos) << m;
+    EXPECT_NE(m.find("simulation.engine"), std::string::npos) << m;
+    EXPECT_NE(m.find("engine 'spring_particles' is not built into this pbve (available: "
+                     "mass_spring"),
+              std::string::npos)
+        << m;
+  }
+  text.replace(text.find("spring_particles"), 16, "mass_sprng");
+  try {
+    pbve::check_engine(parse_scene(text, "/scenes/s.yaml"));
+    ADD_FAILURE() << "no error for a misspelt engine";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("did you mean 'mass_spring'?"), std::string::npos)
+        << e.what();
+  }
+  EXPECT_NO_THROW(pbve::check_engine(parse_scene(kFull, "/scenes/s.yaml")));
+}
+
+TEST(SceneErrors, EngineNameMustBeAnIdentifier) {
+  std::string text = kFull;
+  text.replace(text.find("mass_spring"), 11, "\"mass spring\"");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find(":11:"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected an engine name"), std::string::npos) << e;
 }
 
 TEST(SceneErrors, WrongTypeNamesKey) {

@@ -1,5 +1,6 @@
 #include "pbve/engines.hpp"
 
+#include <algorithm>
 #include <stdexcept>
 
 #include "pbve/core/error.hpp"
@@ -241,6 +242,21 @@ std::vector<std::string> engine_parameters(const std::string& engine) {
   return {};
 }
 
+namespace {
+// Empty when `engine` is built in, else why not.
+std::string unavailable(const std::string& engine) {
+  const std::vector<std::string> have = available_engines();
+  if (std::find(have.begin(), have.end(), engine) != have.end()) return {};
+  std::string list;
+  for (const auto& e : have) list += (list.empty() ? "" : ", ") + e;
+  std::string msg = "engine '" + engine + "' is not built into this pbve (available: " +
+                    (list.empty() ? std::string("none") : list);
+  const std::string near = nearest_key(engine, have);
+  if (!near.empty()) msg += "; did you mean '" + near + "'?";
+  return msg + ")";
+}
+}  // namespace
+
 std::unique_ptr<Simulator> make_engine(const EngineRecipe& r) {
 #ifdef PBVE_ENGINE_MASS_SPRING
   if (r.simulation.engine == "mass_spring") return make_mass_spring(r);
@@ -248,11 +264,14 @@ std::unique_ptr<Simulator> make_engine(const EngineRecipe& r) {
 #ifdef PBVE_ENGINE_BULLET
   if (r.simulation.engine == "bullet") return make_bullet(r);
 #endif
-  std::string have;
-  for (const auto& e : available_engines()) have += (have.empty() ? "" : ", ") + e;
-  fail_key(r, "engine", 0,
-           "engine '" + r.simulation.engine + "' is not built into this pbve (available: " +
-               (have.empty() ? std::string("none") : have) + ")");
+  fail_key(r, "engine", 0, unavailable(r.simulation.engine));
+}
+
+void check_engine(const Scene& scene) {
+  const std::string why = unavailable(scene.simulation.engine);
+  if (!why.empty())
+    throw InputError(why, scene.file, scene.line_of("simulation.engine"),
+                     "key 'simulation.engine'");
 }
 
 }  // namespace pbve

@@ -77,7 +77,9 @@ struct SceneRegion {
 
 /// `simulation:` — the new physics.
 struct SceneSimulation {
-  std::string engine = "mass_spring";                     ///< mass_spring | bullet
+  /// mass_spring | bullet (built in, pbve::make_engine()), or the name of a program's own
+  /// adapter, which its EditCallbacks::make_simulator selects.
+  std::string engine = "mass_spring";
   std::string material = "cloth";                         ///< cloth | elastic | stiff | rigid
   Eigen::Vector3d gravity = Eigen::Vector3d(0, 9.81, 0);  ///< m/s^2, camera frame
   std::optional<ScenePlane> ground;

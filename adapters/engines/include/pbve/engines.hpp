@@ -27,4 +27,9 @@ std::vector<std::string> engine_parameters(const std::string& engine);
 /// invalid value.
 std::unique_ptr<Simulator> make_engine(const EngineRecipe& recipe);
 
+/// Checks, before any work, that the scene's engine is one of available_engines(): throws
+/// InputError naming the scene file, the line of `simulation.engine` and the nearest engine
+/// otherwise.
+void check_engine(const Scene& scene);
+
 }  // namespace pbve
