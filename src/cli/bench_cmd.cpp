@@ -19,6 +19,8 @@
 
 #include "cli/commands.hpp"
 #include "pbve/config.hpp"
+#include "pbve/core/error.hpp"
+#include "pbve/core/files.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/edit/editor.hpp"
 #include "pbve/edit/scene.hpp"
@@ -97,22 +99,6 @@ std::string utc_now() {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buf;
-}
-
-/// Writes `text` to `path` through a temporary name renamed when complete.
-void write_atomically(const fs::path& path, const std::string& text) {
-  const fs::path tmp = path.string() + ".tmp";
-  {
-    std::ofstream f(tmp);
-    f << text;
-    f.flush();
-    if (!f) {
-      std::error_code ec;
-      fs::remove(tmp, ec);
-      throw std::runtime_error("cannot write " + path.string());
-    }
-  }
-  fs::rename(tmp, path);
 }
 
 const char* kHelp =
@@ -211,6 +197,7 @@ int run_bench(const std::vector<std::string>& argv) {
   check_engine(base);
   const Mesh mesh = load_mesh(clip.mesh);
 
+  const InterruptGuard guard;
   json runs = json::array();
   for (const int target : targets) {
     const auto [refine, vertices] = refine_for(mesh, target);
@@ -244,7 +231,10 @@ int run_bench(const std::vector<std::string>& argv) {
                        p.total);
           std::fflush(stderr);
         };
+      cb.cancel = [] { return interrupted(); };
       const EditResult r = run_edit(scene, o, cb);
+      if (r.status == EditStatus::cancelled || interrupted())
+        throw Interrupted("interrupted: no benchmark file written");
       std::vector<double> frame_ms, solve_ms;
       for (const FrameRecord& f : r.report.frames) {
         if (f.status == "rest") continue;  // nothing simulated in the first frame
@@ -298,7 +288,12 @@ int run_bench(const std::vector<std::string>& argv) {
                                 return c;
                               }()},
               {"runs", runs}};
-  write_atomically(out, doc.dump(2) + "\n");
+  write_atomically(out, [&](const fs::path& tmp) {
+    std::ofstream f(tmp);
+    f << doc.dump(2) << "\n";
+    f.flush();
+    if (!f) throw InputError("cannot write the benchmark file (disk full?)", out);
+  });
   std::printf("wrote %s\n", out.c_str());
   return 0;
 }

@@ -13,6 +13,26 @@ class UsageError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// A command stopped by SIGINT or SIGTERM before it finished (exit status 130): what it was
+/// writing has been removed.
+class Interrupted : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// While alive, SIGINT and SIGTERM set interrupted() instead of ending the process (a second
+/// signal ends it at once), so that a command stops at its next check and unwinds: temporary
+/// files removed, outputs left as they were.
+class InterruptGuard {
+ public:
+  InterruptGuard();
+  ~InterruptGuard();
+  InterruptGuard(const InterruptGuard&) = delete;
+  InterruptGuard& operator=(const InterruptGuard&) = delete;
+};
+/// A signal arrived while an InterruptGuard was alive.
+bool interrupted();
+
 /// Small argument scanner: options are --name VALUE, --flag, or -o VALUE.
 class Args {
  public:

@@ -2,8 +2,6 @@
 
 #include <unistd.h>
 
-#include <atomic>
-#include <csignal>
 #include <cstdio>
 #include <string>
 
@@ -15,13 +13,6 @@
 namespace pbve::cli {
 
 namespace {
-
-std::atomic<bool> g_interrupted{false};
-
-extern "C" void on_sigint(int) {
-  g_interrupted.store(true);
-  std::signal(SIGINT, SIG_DFL);  // a second Ctrl-C stops at once
-}
 
 void parse_frames(const std::string& spec, EditOptions& o) {
   const auto colon = spec.find(':');
@@ -101,17 +92,14 @@ int run_edit(const std::vector<std::string>& argv) {
   EditCallbacks cb;
   cb.make_simulator = [](const EngineRecipe& r) { return make_engine(r); };
   if (!quiet) cb.progress = [tty](const EditProgress& p) { print_progress(p, tty); };
-  cb.cancel = [] { return g_interrupted.load(); };
-  g_interrupted = false;
-  auto previous = std::signal(SIGINT, on_sigint);
+  cb.cancel = [] { return interrupted(); };
   EditResult r;
   try {
+    const InterruptGuard guard;
     r = run_edit(scene, o, cb);
-  } catch (...) {
-    std::signal(SIGINT, previous);
-    throw;
+  } catch (const EditCancelled& e) {
+    throw Interrupted(e.what());
   }
-  std::signal(SIGINT, previous);
   const ReportSummary s = r.report.summary();
   std::printf("edited video: %s\nreport:       %s\n", r.video.c_str(), r.report_path.c_str());
   if (r.report.tracking)

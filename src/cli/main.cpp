@@ -55,6 +55,9 @@ int main(int argc, char** argv) {
     if (cmd == "track") return pbve::cli::run_track(args);
     std::fprintf(stderr, "pbve: unknown command '%s'\n\n%s", cmd.c_str(), kUsage);
     return 2;
+  } catch (const pbve::cli::Interrupted& e) {
+    std::fprintf(stderr, "pbve %s: %s\n", cmd.c_str(), e.what());
+    return 130;
   } catch (const pbve::cli::UsageError& e) {
     std::fprintf(stderr, "pbve %s: %s\n(run 'pbve %s --help' for usage)\n", cmd.c_str(), e.what(),
                  cmd.c_str());

@@ -96,11 +96,19 @@ int run_track(const std::vector<std::string>& argv) {
     throw UsageError(
         "the initial pose is missing: give --initial-pose FILE or --correspondences FILE "
         "(exactly one)");
-  for (const auto& in : {pos[0], pos[1], initial, pairs, truth})
-    if (!in.empty() && (std::filesystem::path(in) == output ||
-                        (!overlay.empty() && std::filesystem::path(in) == overlay) ||
-                        (!log.empty() && std::filesystem::path(in) == log)))
-      throw UsageError("an output path equals the input " + in);
+  // Outputs: not an input (through any link or spelling), not each other, and writable, before
+  // any work.
+  const std::vector<std::string> outputs = {output, overlay, log};
+  for (size_t i = 0; i < outputs.size(); ++i) {
+    if (outputs[i].empty()) continue;
+    for (const auto& in : {pos[0], pos[1], initial, pairs, truth})
+      if (same_file(outputs[i], in))
+        throw UsageError("the output " + outputs[i] + " would overwrite the input " + in);
+    for (size_t j = 0; j < i; ++j)
+      if (same_file(outputs[i], outputs[j]))
+        throw UsageError("two outputs are the same file: " + outputs[j] + " and " + outputs[i]);
+    check_writable(outputs[i]);
+  }
 
   Footage footage = Footage::open_video(pos[0]);
   const Mesh mesh = load_mesh(pos[1]);
@@ -134,6 +142,8 @@ int run_track(const std::vector<std::string>& argv) {
   table << "frame,lost,correspondences,inliers,rms_px,agreement,keyframe,redetected,error_px\n";
   TrackFrameCallback on_frame = [&](int t, const cv::Mat& frame, const std::optional<Pose>& pose,
                                     const TrackFrameInfo& info) {
+    if (interrupted())
+      throw Interrupted("interrupted at frame " + std::to_string(t) + ": nothing written");
     if (writer) {
       cv::Mat out = frame.clone();
       if (pose) draw_mesh_edges(out, mesh, camera, *pose);
@@ -163,6 +173,7 @@ int run_track(const std::vector<std::string>& argv) {
                      info.lost ? "lost" : "tracked", info.inliers, info.correspondences);
     }
   };
+  const InterruptGuard guard;
   const TrackResult r = track_footage(footage, mesh, camera, start, TrackOptions{}, on_frame);
   if (!quiet && tty) std::fputc('\n', stderr);
   save_pose_file(r.track, output);

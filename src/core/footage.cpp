@@ -21,13 +21,6 @@ namespace fs = std::filesystem;
 
 namespace pbve {
 
-std::filesystem::path partial_path(const std::filesystem::path& path) {
-  fs::path name = path.stem();
-  name += ".partial";
-  name += path.extension();
-  return path.parent_path() / name;
-}
-
 namespace {
 
 /// Converts a decoded image to 8-bit BGR (grayscale and alpha are converted, deeper
@@ -395,7 +388,7 @@ struct VideoWriter::Impl {
 };
 
 VideoWriter::VideoWriter(const std::filesystem::path& path, double fps, cv::Size size)
-    : m_path(path), m_tmp(partial_path(path)), m_size(size), m_impl(std::make_unique<Impl>()) {
+    : m_path(path), m_size(size), m_impl(std::make_unique<Impl>()) {
   if (!std::isfinite(fps) || fps <= 0.0)
     throw std::invalid_argument("VideoWriter: frame rate must be positive, got " +
                                 std::to_string(fps));
@@ -418,6 +411,8 @@ VideoWriter::VideoWriter(const std::filesystem::path& path, double fps, cv::Size
     throw InputError("no video codec for the extension '" + ext +
                          "'; extensions that work here: " + working_extensions(),
                      path);
+  check_writable(path);
+  m_tmp = reserve_partial(path);
   for (const char* fourcc : choice->fourccs) {
     if (m_impl->writer.open(m_tmp.string(), cv::CAP_FFMPEG, fourcc_of(fourcc), fps, size, true))
       return;
@@ -455,13 +450,23 @@ void VideoWriter::close() {
   if (m_impl->closed) return;
   m_impl->writer.release();
   m_impl->closed = true;
-  std::error_code ec;
-  fs::rename(m_tmp, m_path, ec);
-  if (ec) {
-    const std::string reason = ec.message();
-    fs::remove(m_tmp, ec);
-    throw InputError("cannot move the finished video into place: " + reason, m_path);
+  // The encoder reports no write error (a full disk leaves a file without its index): read the
+  // finished file back before it takes the final name. Containers store the frame count
+  // (.mp4, .avi) or give it from the duration (.mkv, within a frame).
+  if (m_frames > 0) {
+    cv::VideoCapture check(m_tmp.string(), cv::CAP_FFMPEG);
+    const double count = check.isOpened() ? check.get(cv::CAP_PROP_FRAME_COUNT) : 0.0;
+    check.release();
+    if (!(count >= std::max(1, m_frames - 1))) {
+      std::error_code ec;
+      fs::remove(m_tmp, ec);
+      throw InputError("the video could not be written completely (" + std::to_string(m_frames) +
+                           " frames written, " + std::to_string(static_cast<long long>(count)) +
+                           " readable; is the disk full?)",
+                       m_path);
+    }
   }
+  commit_partial(m_tmp, m_path);
 }
 
 }  // namespace pbve

@@ -22,6 +22,7 @@
 #include <unistd.h>
 
 #include "pbve/core/error.hpp"
+#include "pbve/core/files.hpp"
 #include "pbve/core/mesh.hpp"
 
 namespace pbve {
@@ -86,35 +87,18 @@ class FileData {
   std::string m_copy;
 };
 
-/// "name.partial.ext" beside `path`, the name used while a file is being written.
-fs::path staging_path(const fs::path& path) {
-  fs::path tmp = path;
-  tmp.replace_filename(path.stem().string() + ".partial" + path.extension().string());
-  return tmp;
-}
-
-/// Writes `bytes` to a temporary file beside `path` and renames it to `path`.
+/// Writes `bytes` to `path` through a temporary file (write_atomically()).
 void write_file_atomically(const fs::path& path, std::string_view bytes) {
-  const fs::path tmp = staging_path(path);
-  std::FILE* f = std::fopen(tmp.c_str(), "wb");
-  if (!f) {
-    const int err = errno;
-    throw InputError("cannot create file: " + std::generic_category().message(err), tmp);
-  }
-  const bool ok = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
-  const bool closed = std::fclose(f) == 0;
-  if (!ok || !closed) {
-    std::error_code ec;
-    fs::remove(tmp, ec);
-    throw InputError("cannot write file (disk full?)", tmp);
-  }
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(tmp, ignored);
-    throw InputError("cannot rename temporary file into place: " + ec.message(), path);
-  }
+  write_atomically(path, [&](const fs::path& tmp) {
+    std::FILE* f = std::fopen(tmp.c_str(), "wb");
+    if (!f) {
+      const int err = errno;
+      throw InputError("cannot create file: " + std::generic_category().message(err), tmp);
+    }
+    const bool ok = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+    const bool closed = std::fclose(f) == 0;
+    if (!ok || !closed) throw InputError("cannot write file (disk full?)", tmp);
+  });
 }
 
 bool is_blank(char c) {

@@ -2,13 +2,15 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <map>
 #include <optional>
+#include <regex>
 #include <sstream>
+#include <string_view>
 
-#include <fcntl.h>
 #include <unistd.h>
 
 #include <opencv2/imgcodecs.hpp>
@@ -16,6 +18,7 @@
 #include "pbve/control/optimizer.hpp"
 #include "pbve/core/camera.hpp"
 #include "pbve/core/error.hpp"
+#include "pbve/core/files.hpp"
 #include "pbve/core/footage.hpp"
 #include "pbve/core/fracture.hpp"
 #include "pbve/core/mesh.hpp"
@@ -39,12 +42,35 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-/// Same file (or the same path when one does not exist yet).
-bool same_file(const fs::path& a, const fs::path& b) {
-  if (a.empty() || b.empty()) return false;
-  std::error_code ec;
-  if (fs::exists(a, ec) && fs::exists(b, ec)) return fs::equivalent(a, b, ec);
-  return fs::weakly_canonical(a, ec) == fs::weakly_canonical(b, ec);
+/// Whether `path` is a file of the image sequence `pattern` ("frames/%04d.png": a printf
+/// integer conversion in the file name): the same folder, and a name the pattern makes.
+bool in_sequence(const fs::path& path, const std::string& pattern) {
+  if (pattern.empty() || path.empty()) return false;
+  const fs::path pat(pattern);
+  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
+  const fs::path pat_dir = pat.has_parent_path() ? pat.parent_path() : fs::path(".");
+  if (!same_file(dir, pat_dir)) return false;
+  const std::string name = pat.filename().string();
+  std::string re;
+  for (size_t i = 0; i < name.size(); ++i) {
+    if (name[i] == '%') {
+      size_t j = i + 1;
+      while (j < name.size() && std::isdigit(static_cast<unsigned char>(name[j])) != 0) ++j;
+      if (j < name.size() && name[j] == 'd') {
+        re += "-?[0-9]+";
+        i = j;
+        continue;
+      }
+      if (j == i + 1 && j < name.size() && name[j] == '%') {
+        re += "%";
+        i = j;
+        continue;
+      }
+    }
+    if (std::string_view("\\^$.|?*+()[]{}").find(name[i]) != std::string_view::npos) re += '\\';
+    re += name[i];
+  }
+  return std::regex_match(path.filename().string(), std::regex(re));
 }
 
 /// An error about the scene key `key` (dotted name), at its line in the scene file.
@@ -73,23 +99,25 @@ void check_output_path(const fs::path& out, const Scene& scene, const std::strin
     if (from_scene) throw scene_error(scene, key, message);
     throw InputError(message, out);
   };
-  const std::vector<fs::path> inputs = {scene.file,         scene.input.video,
-                                        scene.input.image,  scene.object.mesh,
-                                        scene.object.poses, scene.background.plate};
+  const std::vector<fs::path> inputs = {scene.file,
+                                        scene.input.video,
+                                        scene.input.image,
+                                        scene.object.mesh,
+                                        scene.background.plate,
+                                        scene.object.initial_pose,
+                                        scene.object.correspondences};
   for (const fs::path& in : inputs)
     if (same_file(out, in)) fail("the output would overwrite the input file " + in.string());
-  const fs::path dir = out.has_parent_path() ? out.parent_path() : fs::path(".");
-  std::error_code ec;
-  if (!fs::is_directory(dir, ec)) fail("the output folder " + dir.string() + " does not exist");
-  if (fs::is_directory(out, ec)) fail("the output " + out.string() + " is a folder");
-  const fs::path probe = partial_path(out);
-  const bool existed = fs::exists(probe, ec);
-  const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0644);
-  if (fd < 0)
-    fail("cannot create files in the output folder " + dir.string() + ": " +
-         std::generic_category().message(errno));
-  ::close(fd);
-  if (!existed) fs::remove(probe, ec);
+  if (!scene.object.track && same_file(out, scene.object.poses))
+    fail("the output would overwrite the input file " + scene.object.poses.string());
+  for (const std::string& pattern : {scene.input.sequence, scene.background.remove})
+    if (in_sequence(out, pattern))
+      fail("the output would overwrite a file of the input sequence " + pattern);
+  try {
+    check_writable(out);
+  } catch (const InputError& e) {
+    fail(e.message());
+  }
 }
 
 /// Adds the scene file's line to an engine's error about a scene key or material parameter.
@@ -255,10 +283,6 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
                         ? fs::path(result.video).replace_extension(".poses.txt")
                         : scene.object.tracked_poses;
     check_output_path(tracked_poses, scene, "object.tracked_poses", true);
-    for (const fs::path& in : {scene.object.initial_pose, scene.object.correspondences})
-      if (same_file(tracked_poses, in))
-        throw scene_error(scene, "object.tracked_poses",
-                          "the tracked poses would overwrite the input file " + in.string());
   } else {
     check_input_file(scene, scene.object.poses, "object.poses", "pose file");
   }
@@ -267,6 +291,10 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   check_output_path(result.report_path, scene, "output.report", options.report.empty());
   if (same_file(result.video, result.report_path))
     throw scene_error(scene, "output.report", "the video and the report would be the same file");
+  for (const fs::path& out : {result.video, result.report_path})
+    if (same_file(tracked_poses, out))
+      throw scene_error(scene, "object.tracked_poses",
+                        "the tracked poses and " + out.string() + " would be the same file");
 
   // ---- inputs -----------------------------------------------------------------------------
   Footage footage = open_footage(scene);
@@ -306,7 +334,13 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     Footage frames = open_footage(scene);
     TrackResult tracked;
     try {
-      tracked = track_footage(frames, mesh, camera, initial);
+      tracked = track_footage(
+          frames, mesh, camera, initial, TrackOptions{},
+          [&](int t, const cv::Mat&, const std::optional<Pose>&, const TrackFrameInfo&) {
+            if (cb.cancel && cb.cancel())
+              throw EditCancelled("cancelled while tracking, at frame " + std::to_string(t) +
+                                  ": nothing written");
+          });
     } catch (const InputError& e) {
       if (!e.file().empty()) throw;
       throw scene_error(
@@ -604,11 +638,11 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   for (auto& w : faithfulness_warnings(report.frames)) report.warnings.push_back(std::move(w));
   // The report is written under its temporary name first, so that a failure leaves neither
   // output under its final name; then both are moved into place.
-  const fs::path staged_report = partial_path(result.report_path);
+  const fs::path staged_report = reserve_partial(result.report_path);
   try {
     write_report(report, staged_report);
     writer.close();
-    fs::rename(staged_report, result.report_path);
+    commit_partial(staged_report, result.report_path);
   } catch (...) {
     std::error_code ec;
     fs::remove(staged_report, ec);

@@ -256,6 +256,12 @@ cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
 SynthRecipe synth_recipe(const SynthOptions& o) {
   if (o.frames < 1) throw InputError("frames must be at least 1", {}, 0, "--frames");
   if (o.width < 16 || o.height < 16) throw InputError("image size too small", {}, 0, "--size");
+  if (o.supersample < 1 || o.supersample > 8)
+    throw InputError("supersample must be 1 to 8, got " + std::to_string(o.supersample), {}, 0,
+                     "--supersample");
+  if (!(o.fps > 0.0 && o.fps <= 1000.0))
+    throw InputError("fps must be above 0 and at most 1000, got " + std::to_string(o.fps), {}, 0,
+                     "--fps");
   SynthRecipe r;
   r.camera.width = o.width;
   r.camera.height = o.height;
@@ -480,11 +486,26 @@ void draw_occluder(cv::Mat& img, const Mesh& mesh, const Pose& pose, const Camer
 
 }  // namespace
 
+// The files of a clip made from `r` (synthesize()).
+static SynthOutput write_synth(const SynthOptions& o, const SynthRecipe& r,
+                               const fs::path& out_dir);
+
 SynthOutput synthesize(const SynthOptions& o, const fs::path& out_dir) {
-  SynthRecipe r = synth_recipe(o);
+  const SynthRecipe r = synth_recipe(o);  // checks the options before any file is written
   std::error_code ec;
+  const bool created = !fs::exists(out_dir, ec);
   fs::create_directories(out_dir, ec);
   if (ec) throw InputError("cannot create the output folder: " + ec.message(), out_dir);
+  try {
+    return write_synth(o, r, out_dir);
+  } catch (...) {
+    if (created) fs::remove_all(out_dir, ec);  // a folder made for this run: all of it ours
+    throw;
+  }
+}
+
+static SynthOutput write_synth(const SynthOptions& o, const SynthRecipe& r,
+                               const fs::path& out_dir) {
   SynthOutput out;
   out.camera = r.camera;
   out.track = r.track;

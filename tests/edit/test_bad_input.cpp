@@ -11,6 +11,8 @@
 #include <sstream>
 #include <string>
 
+#include <sys/stat.h>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
@@ -456,6 +458,65 @@ TEST_F(BadInput, OutputFolderUnwritable) {
                {"/proc/pbve_report.json"});
 }
 
+TEST_F(BadInput, ReportOntoAFileOfAnInputSequence) {
+  // Masks of extra regions to fill, one per frame: an output named like one of them would
+  // overwrite it.
+  fs::create_directory(dir / "masks");
+  for (int i = 0; i < 3; ++i)
+    ASSERT_TRUE(cv::imwrite((dir / "masks" / ("000" + std::to_string(i) + ".png")).string(),
+                            cv::Mat::zeros(48, 64, CV_8UC1)));
+  write_text(scene, read_text(scene) + "background: {remove: masks/%04d.png}\n");
+  const std::string before = read_text(dir / "masks" / "0001.png");
+  expect_error(
+      edit("--report " + (dir / "masks" / "./0001.png").string()),
+      {"0001.png: the output would overwrite a file of the input sequence", "masks/%04d.png"});
+  EXPECT_EQ(read_text(dir / "masks" / "0001.png"), before);
+}
+
+TEST_F(BadInput, ReportOntoTheInitialPoseOfTracking) {
+  fs::copy_file(dir / "poses.txt", dir / "first.txt");
+  replace(scene, "poses: poses.txt", "poses: track\n  initial_pose: first.txt");
+  const std::string before = read_text(dir / "first.txt");
+  expect_error(edit("--report " + (dir / "first.txt").string()),
+               {"first.txt: the output would overwrite the input file"});
+  EXPECT_EQ(read_text(dir / "first.txt"), before);
+}
+
+TEST_F(BadInput, TrackedPosesOntoTheReport) {
+  replace(scene, "poses: poses.txt",
+          "poses: track\n  initial_pose: poses.txt\n  tracked_poses: report.json");
+  expect_error(edit(), {location("tracked_poses:") + "key 'object.tracked_poses': the tracked "
+                                                     "poses and",
+                        "report.json would be the same file"});
+}
+
+TEST_F(BadInput, ReportOntoAPipeIsRefused) {
+  // Moving the finished report onto a pipe (or a device such as /dev/null) would replace it.
+  const fs::path pipe = dir / "pipe";
+  ASSERT_EQ(::mkfifo(pipe.c_str(), 0644), 0);
+  expect_error(edit("--report " + pipe.string()),
+               {"pipe: the output", "is a pipe, not a file it can replace"});
+  EXPECT_TRUE(fs::is_fifo(pipe));
+}
+
+TEST_F(BadInput, AnInputNamedLikeATemporaryOutputIsKept) {
+  // The video and the report are written under temporary names that no existing file has.
+  fs::rename(dir / "clip.mp4", dir / "edited.partial.mp4");
+  replace(scene, "video: clip.mp4", "video: edited.partial.mp4");
+  fs::rename(dir / "poses.txt", dir / "report.partial.json");
+  replace(scene, "poses: poses.txt", "poses: report.partial.json");
+  const std::string video = read_text(dir / "edited.partial.mp4");
+  const std::string poses = read_text(dir / "report.partial.json");
+  const CmdResult r = edit();
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_EQ(read_text(dir / "edited.partial.mp4"), video);
+  EXPECT_EQ(read_text(dir / "report.partial.json"), poses);
+  EXPECT_TRUE(fs::exists(dir / "edited.mp4"));
+  EXPECT_TRUE(fs::exists(dir / "report.json"));
+  EXPECT_FALSE(fs::exists(dir / "edited.partial-2.mp4"));
+  EXPECT_FALSE(fs::exists(dir / "report.partial-2.json"));
+}
+
 TEST_F(BadInput, UnsupportedVideoExtension) {
   expect_error(edit("-o " + (dir / "edited.xyz").string()),
                {"edited.xyz: no video codec for the extension '.xyz'", ".mp4"},
@@ -463,6 +524,21 @@ TEST_F(BadInput, UnsupportedVideoExtension) {
 }
 
 // ---- pbve plot and pbve synth -----------------------------------------------------------------
+
+TEST_F(BadInput, SynthChecksItsOptionsBeforeWritingAnything) {
+  const fs::path mine = dir / "mine";
+  fs::create_directory(mine);
+  write_text(mine / "poses.txt", "precious\n");
+  CmdResult r = pbve_cmd("synth --size 64x48 --frames 3 --supersample 0 " + mine.string());
+  EXPECT_NE(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("supersample must be 1 to 8, got 0"), std::string::npos) << r.output;
+  EXPECT_EQ(read_text(mine / "poses.txt"), "precious\n");
+  EXPECT_EQ(std::distance(fs::directory_iterator(mine), fs::directory_iterator{}), 1);
+  r = pbve_cmd("synth --size 64x48 --frames 3 --fps 1e308 " + (dir / "new").string());
+  EXPECT_NE(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("fps must be above 0 and at most 1000"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "new"));
+}
 
 TEST_F(BadInput, PlotOfAnInvalidReportWritesNoPlot) {
   write_text(dir / "bad.json", "{\"frames\": [{\"index\": 0}]}");

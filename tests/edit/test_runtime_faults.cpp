@@ -1,7 +1,7 @@
 // Runtime faults during `pbve edit`: a diverging simulation is retried with more substeps and,
 // failing that, stops the run with a valid shorter video and a report marked incomplete; a
-// failing optimizer falls back to no control; Ctrl-C (SIGINT) finishes the current frame and
-// leaves valid, shorter results.
+// failing optimizer falls back to no control; Ctrl-C (SIGINT) or SIGTERM finishes the current frame
+// and leaves valid, shorter results.
 
 #include <signal.h>
 
@@ -159,7 +159,9 @@ TEST_F(RuntimeFaults, NonFiniteEnergyKeepsTheBestIterate) {
   EXPECT_EQ(decoded_frames(dir / "edited.mp4"), 5);
 }
 
-TEST(EditInterrupt, SigintFinishesTheFrameAndWritesAnIncompleteReport) {
+class EditInterrupt : public ::testing::TestWithParam<int> {};
+
+TEST_P(EditInterrupt, FinishesTheFrameAndWritesAnIncompleteReport) {
   pbve::test::TempDir dir;
   const auto s =
       pbve::test::pbve_cmd("synth --size 64x48 --frames 40 --supersample 1 " + dir.path().string());
@@ -167,7 +169,7 @@ TEST(EditInterrupt, SigintFinishesTheFrameAndWritesAnIncompleteReport) {
   pbve::test::PbveProcess p({"edit", (dir / "scene.yaml").string(), "--no-control"});
   ASSERT_TRUE(p.started());
   ASSERT_TRUE(p.wait_for_line("frame 0 (1/40)")) << p.output();
-  p.send(SIGINT);
+  p.send(GetParam());
   const int status = p.wait();
   EXPECT_EQ(status, 130) << p.output();
   EXPECT_NE(p.output().find("stopped early: cancelled after frame"), std::string::npos)
@@ -181,5 +183,10 @@ TEST(EditInterrupt, SigintFinishesTheFrameAndWritesAnIncompleteReport) {
   EXPECT_FALSE(fs::exists(dir / "edited.partial.mp4"));
   EXPECT_FALSE(fs::exists(dir / "report.partial.json"));
 }
+
+INSTANTIATE_TEST_SUITE_P(Signals, EditInterrupt, ::testing::Values(SIGINT, SIGTERM),
+                         [](const ::testing::TestParamInfo<int>& info) {
+                           return std::string(info.param == SIGINT ? "Sigint" : "Sigterm");
+                         });
 
 }  // namespace

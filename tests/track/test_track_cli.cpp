@@ -2,6 +2,7 @@
 // bad correspondences.
 
 #include <algorithm>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -22,6 +23,7 @@ namespace fs = std::filesystem;
 using pbve::test::CmdResult;
 using pbve::test::pbve_binary;
 using pbve::test::pbve_cmd;
+using pbve::test::read_text;
 
 class TrackCli : public ::testing::Test {
  protected:
@@ -80,6 +82,49 @@ TEST_F(TrackCli, MissingInitialPoseIsAUsageError) {
   EXPECT_EQ(r.status, 2) << r.output;
   EXPECT_NE(r.output.find("the initial pose is missing"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+}
+
+TEST_F(TrackCli, OutputsThatAreInputsOrEachOtherAreRefusedBeforeAnyWork) {
+  const std::string init = read_text(dir / "init.txt");
+  CmdResult r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
+                         (dir / "sub" / ".." / "init.txt").string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("would overwrite the input"), std::string::npos) << r.output;
+  EXPECT_EQ(read_text(dir / "init.txt"), init);
+  const std::string clip = read_text(dir / "clip.mp4");
+  r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
+               (dir / "a.txt").string() + " --overlay " + (dir / "clip.mp4").string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_EQ(read_text(dir / "clip.mp4"), clip);
+  r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
+               (dir / "a.txt").string() + " --log " + (dir / "a.txt").string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("two outputs are the same file"), std::string::npos) << r.output;
+  r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
+               (dir / "a.txt").string() + " --log " + (dir / "no_such" / "log.csv").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("the output folder"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("frame "), std::string::npos) << r.output;  // nothing tracked
+  EXPECT_FALSE(fs::exists(dir / "a.txt"));
+}
+
+TEST_F(TrackCli, SigtermStopsWithoutWritingAnything) {
+  const CmdResult s =
+      pbve_cmd("synth --motion orbit --frames 240 --supersample 1 " + d() + "/long");
+  ASSERT_EQ(s.status, 0) << s.output;
+  pbve::test::PbveProcess p({"track", (dir / "long" / "clip.mp4").string(),
+                             (dir / "long" / "object.obj").string(), "--camera",
+                             "600,600,319.5,239.5", "--initial-pose", (dir / "init.txt").string(),
+                             "-o", (dir / "long" / "tracked.txt").string(), "--overlay",
+                             (dir / "long" / "overlay.mp4").string()});
+  ASSERT_TRUE(p.started());
+  ASSERT_TRUE(p.wait_for_line("frame 30/240")) << p.output();
+  p.send(SIGTERM);
+  EXPECT_EQ(p.wait(), 130) << p.output();
+  EXPECT_NE(p.output().find("interrupted at frame"), std::string::npos) << p.output();
+  for (const char* name :
+       {"tracked.txt", "tracked.partial.txt", "overlay.mp4", "overlay.partial.mp4"})
+    EXPECT_FALSE(fs::exists(dir / "long" / name)) << name;
 }
 
 TEST_F(TrackCli, BadCorrespondenceLineNamesFileAndLine) {

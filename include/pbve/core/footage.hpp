@@ -8,6 +8,8 @@
 
 #include <opencv2/core.hpp>
 
+#include "pbve/core/files.hpp"
+
 namespace pbve {
 
 /// Read access to input frames (8-bit BGR, as OpenCV). Sequential access decodes each frame
@@ -75,35 +77,4 @@ class VideoWriter {
   std::unique_ptr<Impl> m_impl;
 };
 
-/// Writes a file atomically: `write` receives a temporary path beside `path`, which is
-/// renamed to `path` when it returns normally and removed when it throws.
-template <class WriteFn>
-void write_atomically(const std::filesystem::path& path, WriteFn&& write);
-
-/// The temporary name used for `path` while it is being written ("name.partial.ext").
-std::filesystem::path partial_path(const std::filesystem::path& path);
-
-}  // namespace pbve
-
-#include <system_error>
-namespace pbve {
-template <class WriteFn>
-void write_atomically(const std::filesystem::path& path, WriteFn&& write) {
-  const std::filesystem::path tmp = partial_path(path);
-  try {
-    write(tmp);
-  } catch (...) {
-    std::error_code ec;
-    std::filesystem::remove(tmp, ec);
-    throw;
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
-    std::error_code ignored;
-    std::filesystem::remove(tmp, ignored);
-    throw std::filesystem::filesystem_error("cannot move the finished file into place", tmp, path,
-                                            ec);
-  }
-}
 }  // namespace pbve

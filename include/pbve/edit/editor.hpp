@@ -13,6 +13,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <string>
 
 #include "pbve/edit/engine_recipe.hpp"
@@ -42,11 +43,19 @@ struct EditProgress {
 struct EditCallbacks {
   std::function<void(const EditProgress&)> progress;
   /// Polled between frames and inside the optimizer: true = stop after the current frame,
-  /// close the video validly and write the report marked incomplete.
+  /// close the video validly and write the report marked incomplete. Polled between tracked
+  /// frames too (`poses: track`): true there throws EditCancelled, nothing written.
   std::function<bool()> cancel;
   /// Creates the simulator (required): pbve::make_engine() from pbve/engines.hpp for the
   /// built-in engines, or a factory of one's own adapter.
   std::function<std::unique_ptr<Simulator>(const EngineRecipe&)> make_simulator;
+};
+
+/// Thrown by run_edit() when the cancel hook stops it before the first edited frame (while
+/// tracking): no output is written.
+class EditCancelled : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
 };
 
 /// How a run ended.
