@@ -18,15 +18,23 @@ std::string Args::value(const std::string& name, const std::string& alias,
       std::string v = m_args[i + 1];
       m_args.erase(m_args.begin() + static_cast<long>(i),
                    m_args.begin() + static_cast<long>(i) + 2);
+      reject_repeat(name, alias);
       return v;
     }
     if (a.rfind(name + "=", 0) == 0) {
       std::string v = a.substr(name.size() + 1);
       m_args.erase(m_args.begin() + static_cast<long>(i));
+      reject_repeat(name, alias);
       return v;
     }
   }
   return fallback;
+}
+
+void Args::reject_repeat(const std::string& name, const std::string& alias) const {
+  for (const auto& a : m_args)
+    if (a == name || (!alias.empty() && a == alias) || a.rfind(name + "=", 0) == 0)
+      throw UsageError("option " + name + " given twice");
 }
 
 bool Args::flag(const std::string& name) {

@@ -139,8 +139,10 @@ int run_bench(const std::vector<std::string>& argv) {
   }
   const fs::path out = args.value("--output", "-o", "bench.json");
   std::vector<int> targets;
-  for (const auto& s : split(args.value("--vertices", {}, "1000,4000,16000"), ','))
+  for (const auto& s : split(args.value("--vertices", {}, "1000,4000,16000"), ',')) {
     targets.push_back(parse_int("--vertices", s));
+    if (targets.back() <= 0) throw UsageError("--vertices: a target must be positive, got " + s);
+  }
   const std::string frames_spec = args.value("--frames", {}, "14:24");
   const auto colon = frames_spec.find(':');
   if (colon == std::string::npos) throw UsageError("--frames expects A:B");
@@ -150,6 +152,7 @@ int run_bench(const std::vector<std::string>& argv) {
     throw UsageError("--frames " + frames_spec + " needs at least two frames");
   const std::vector<std::string> modes =
       split(args.value("--modes", {}, "unconstrained,adjoint,central"), ',');
+  if (modes.empty()) throw UsageError("--modes is empty");
   for (const auto& m : modes)
     if (m != "unconstrained" && m != "adjoint" && m != "central")
       throw UsageError("unknown mode '" + m + "' (expected unconstrained, adjoint or central)");
@@ -177,6 +180,12 @@ int run_bench(const std::vector<std::string>& argv) {
   if (!fs::is_directory(out_dir))
     throw std::runtime_error("the output folder " + out_dir.string() + " does not exist");
 
+  check_writable(out);
+  // --work DIR receives the clip, its mesh, scene, videos and reports: a new or empty folder,
+  // so that none of its files is written over.
+  if (std::error_code ec; !work_arg.empty() && fs::exists(work_arg, ec) &&
+                          !(fs::is_directory(work_arg, ec) && fs::is_empty(work_arg, ec)))
+    throw UsageError("--work " + work_arg.string() + " must be a new or empty folder");
   const bool keep = !work_arg.empty();
   const fs::path work =
       keep ? work_arg : fs::temp_directory_path() / ("pbve-bench-" + std::to_string(::getpid()));

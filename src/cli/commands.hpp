@@ -47,6 +47,7 @@ class Args {
   std::vector<std::string> positional() const;
 
  private:
+  void reject_repeat(const std::string& name, const std::string& alias) const;
   std::vector<std::string> m_args;
 };
 

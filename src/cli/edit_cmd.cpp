@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <charconv>
 #include <cstdio>
 #include <string>
 
@@ -17,14 +18,19 @@ namespace {
 void parse_frames(const std::string& spec, EditOptions& o) {
   const auto colon = spec.find(':');
   if (colon == std::string::npos) throw UsageError("--frames expects A:B, got '" + spec + "'");
-  try {
-    const std::string a = spec.substr(0, colon), b = spec.substr(colon + 1);
-    o.first_frame = a.empty() ? 0 : std::stoi(a);
-    o.end_frame = b.empty() ? -1 : std::stoi(b);
-  } catch (const std::exception&) {
-    throw UsageError("--frames expects A:B with integers, got '" + spec + "'");
-  }
-  if (o.first_frame < 0 || (o.end_frame >= 0 && o.end_frame <= o.first_frame))
+  // Whole non-negative integers only ("1x" is no frame number).
+  auto number = [&](const std::string& text, int fallback) {
+    if (text.empty()) return fallback;
+    int v = 0;
+    const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+    if (ec != std::errc() || end != text.data() + text.size())
+      throw UsageError("--frames expects A:B with whole numbers, got '" + spec + "'");
+    if (v < 0) throw UsageError("--frames " + spec + ": frame numbers start at 0");
+    return v;
+  };
+  o.first_frame = number(spec.substr(0, colon), 0);
+  o.end_frame = number(spec.substr(colon + 1), -1);
+  if (o.end_frame >= 0 && o.end_frame <= o.first_frame)
     throw UsageError("--frames " + spec + " is an empty range");
 }
 

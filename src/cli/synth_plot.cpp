@@ -130,7 +130,16 @@ int run_plot(const std::vector<std::string>& argv) {
       start = c + 1;
     }
   }
+  if (labels.size() != reports.size())
+    throw UsageError("--labels gives " + std::to_string(labels.size()) + " labels for " +
+                     std::to_string(reports.size()) + " reports");
   if (out.empty()) out = fs::path(pos[0]).replace_extension(".png").string();
+  const std::string ext = fs::path(out).extension().string();
+  if (ext != ".png" && ext != ".PNG")
+    throw UsageError("the plot is a PNG image: give -o NAME.png, got " + out);
+  for (const auto& p : pos)
+    if (same_file(out, p)) throw UsageError("the plot would overwrite the report " + p);
+  check_writable(out);
   const cv::Mat img = plot_reports(reports, labels);
   write_atomically(out, [&](const fs::path& tmp) {
     if (!cv::imwrite(tmp.string(), img)) throw InputError("cannot write the plot", out);

@@ -241,6 +241,9 @@ Footage Footage::open_video(const std::filesystem::path& path) {
   return Footage(std::move(impl));
 }
 
+// How far past a sequence's first missing file open_sequence() looks for a later one.
+constexpr int kSequenceGapLookahead = 1000;
+
 Footage Footage::open_sequence(const std::string& pattern, double fps, int first_index) {
   require_fps(fps, pattern);
   auto impl = std::make_unique<Impl>();
@@ -266,6 +269,13 @@ Footage Footage::open_sequence(const std::string& pattern, double fps, int first
   }
   int count = 1;
   while (exists(first_index + count)) ++count;
+  // The sequence ends at its first missing file: a later file means a gap, not an end (a
+  // shorter clip would be edited without a word).
+  for (int k = first_index + count + 1; k <= first_index + count + kSequenceGapLookahead; ++k)
+    if (exists(k))
+      throw InputError("the image sequence has a gap: '" + impl->pattern.file(first_index + count) +
+                           "' is missing but '" + impl->pattern.file(k) + "' exists",
+                       pattern);
   impl->first_index = first_index;
   impl->count = count;
 

@@ -87,6 +87,18 @@ std::string rotation_problem(const Eigen::Matrix3d& r) {
   return {};
 }
 
+// Farther than this from the camera is no pose of filmed footage (the ray tracer's single
+// precision fails long before: at 1e20 m it stops on an assertion).
+constexpr double kMaxTranslation = 1e9;  // metres
+
+void check_translation(const Eigen::Vector3d& t, const std::filesystem::path& path, int line) {
+  if (!(t.norm() <= kMaxTranslation))
+    throw InputError("the translation is " + format_number(t.norm()) +
+                         " m from the camera, beyond " + format_number(kMaxTranslation) +
+                         " m (units: metres)",
+                     path, line);
+}
+
 std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
                                     const std::filesystem::path& path, int line) {
   if (tokens.size() == 1 && tokens[0] == "lost") return std::nullopt;
@@ -118,7 +130,9 @@ std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
     if (!std::isfinite(rvec.stableNorm()))
       throw InputError("the rotation vector is too long: its length (the angle) overflows", path,
                        line);
-    return Pose::from_rodrigues(rvec, {values[3], values[4], values[5]});
+    const Pose pose = Pose::from_rodrigues(rvec, {values[3], values[4], values[5]});
+    check_translation(pose.translation, path, line);
+    return pose;
   }
   if (values.size() != 16)
     throw InputError("expected 16 or 6 numbers or 'lost', found " + std::to_string(values.size()),
@@ -135,6 +149,7 @@ std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
   pose.translation = m.topRightCorner<3, 1>();
   if (const std::string problem = rotation_problem(pose.rotation); !problem.empty())
     throw InputError(problem, path, line);
+  check_translation(pose.translation, path, line);
   return pose;
 }
 
@@ -143,6 +158,7 @@ std::optional<Pose> parse_pose_line(const std::vector<std::string_view>& tokens,
 PoseTrack parse_pose_file(std::string_view text, const std::filesystem::path& name) {
   PoseTrack track;
   int line = 0;
+  if (text.substr(0, 3) == "\xEF\xBB\xBF") text.remove_prefix(3);  // a UTF-8 byte-order mark
   while (!text.empty()) {
     ++line;
     const std::size_t eol = text.find('\n');

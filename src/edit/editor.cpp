@@ -5,6 +5,7 @@
 #include <cctype>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <optional>
 #include <regex>
@@ -40,6 +41,31 @@ using Clock = std::chrono::steady_clock;
 
 double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// A refinement beyond this many vertices is refused (about 60x example 1's finest benchmark
+// mesh: hours per frame).
+constexpr double kMaxRefinedVertices = 2e6;
+
+std::string format_length(double metres) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.3g m", metres);
+  return buf;
+}
+
+std::string format_count(double n) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, n < 1e7 ? "%.0f" : "%.2g", n);
+  return buf;
+}
+
+double longest_edge(const Mesh& mesh, Eigen::Index t) {
+  double longest = 0.0;
+  for (int c = 0; c < 3; ++c)
+    longest = std::max(longest, (mesh.vertices.row(mesh.triangles(t, c)) -
+                                 mesh.vertices.row(mesh.triangles(t, (c + 1) % 3)))
+                                    .norm());
+  return longest;
 }
 
 /// Whether `path` is a file of the image sequence `pattern` ("frames/%04d.png": a printf
@@ -375,7 +401,26 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     }
   }
   const int original_vertices = mesh.num_vertices();
-  if (scene.object.refine > 0) mesh = refine_mesh(mesh, scene.object.refine);
+  if (scene.object.refine > 0) {
+    // Splitting a triangle whose longest edge is l until no edge exceeds r makes about
+    // (l / r)^2 triangles, half as many vertices: refuse a refinement that cannot be edited
+    // (a length in the wrong unit) before it fills the memory.
+    double estimate = mesh.num_vertices(), longest = 0.0;
+    for (Eigen::Index t = 0; t < mesh.triangles.rows(); ++t) {
+      const double edge = longest_edge(mesh, t);
+      const double splits = std::ceil(edge / scene.object.refine);
+      estimate += 0.5 * splits * splits;
+      longest = std::max(longest, edge);
+    }
+    if (!(estimate <= kMaxRefinedVertices))
+      throw scene_error(scene, "object.refine",
+                        "refining to edges of " + format_length(scene.object.refine) +
+                            " would make about " + format_count(estimate) +
+                            " vertices, more than " + format_count(kMaxRefinedVertices) +
+                            " (the mesh's longest edge is " + format_length(longest) +
+                            "; lengths are in the mesh's units, metres)");
+    mesh = refine_mesh(mesh, scene.object.refine);
+  }
 
   const int frames = footage.frame_count();
   if (!scene.input.image.empty() && track.size() == 1)
@@ -389,8 +434,8 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
                               std::to_string(frames) + " frames: the extra poses are ignored");
 
   const int first = options.first_frame;
-  const int end = options.end_frame < 0 ? frames : std::min(options.end_frame, frames);
-  if (first < 0 || first >= end)
+  const int end = options.end_frame < 0 ? frames : options.end_frame;
+  if (first < 0 || first >= end || end > frames)
     throw InputError(
         "frames " + std::to_string(first) + ":" +
             (options.end_frame < 0 ? std::string() : std::to_string(options.end_frame)) +
@@ -420,6 +465,20 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
       pose[static_cast<size_t>(t)] = *track.poses[static_cast<size_t>(from)];
       texture_frame[static_cast<size_t>(t)] = from;
     }
+    // Behind the camera in every edited frame: nothing of the object is seen, the output would
+    // be the footage unchanged. The usual cause is another camera convention.
+    const Eigen::Vector3d centre = mesh.vertices.colwise().mean().transpose();
+    bool seen = false;
+    for (int t = first; t < end && !seen; ++t)
+      seen = pose[static_cast<size_t>(t)].apply(centre).z() > 0;
+    if (!seen)
+      throw InputError("the object is behind the camera in every edited frame (its centre at z = " +
+                           format_length(pose[static_cast<size_t>(first)].apply(centre).z()) +
+                           " in frame " + std::to_string(first) +
+                           "): poses are in OpenCV camera axes, x right, y down, z forward (a "
+                           "pose for an OpenGL camera, which looks along -z, needs its y and z "
+                           "rows negated)",
+                       pose_source);
     int lost_in_range = 0;
     for (int t = first; t < end; ++t) lost_in_range += lost[static_cast<size_t>(t)];
     if (lost_in_range > 0)

@@ -193,6 +193,32 @@ int Scene::line_of(const std::string& key) const {
 
 namespace {
 
+/// Throws InputError at the second of two equal keys of any mapping under `node` (YAML
+/// forbids them; the parser would keep the first silently). `prefix`: the dotted name of `node`.
+void reject_duplicate_keys(const YAML::Node& node, const std::string& prefix,
+                           const fs::path& path) {
+  if (node.IsSequence()) {
+    for (size_t i = 0; i < node.size(); ++i)
+      reject_duplicate_keys(node[i], prefix + "[" + std::to_string(i) + "]", path);
+    return;
+  }
+  if (!node.IsMap()) return;
+  std::map<std::string, int> seen;
+  for (const auto& kv : node) {
+    const std::string key = kv.first.IsScalar() ? kv.first.Scalar() : std::string();
+    const std::string name = prefix.empty() ? key : prefix + "." + key;
+    const int line = kv.first.Mark().line + 1;
+    if (kv.first.IsScalar()) {
+      const auto [it, inserted] = seen.emplace(key, line);
+      if (!inserted)
+        throw InputError(
+            "key given twice (first at line " + std::to_string(it->second) + "): remove one", path,
+            line, "key '" + name + "'");
+    }
+    reject_duplicate_keys(kv.second, name, path);
+  }
+}
+
 Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
   Scene s;
   Reader r(path, s.lines);
@@ -203,6 +229,7 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     throw InputError("YAML syntax error: " + e.msg, path, e.mark.line + 1);
   }
   if (!root.IsDefined() || root.IsNull()) throw InputError("the scene file is empty", path);
+  reject_duplicate_keys(root, "", path);
   r.check_map(root, "",
               {"input", "camera", "object", "background", "simulation", "control", "output"});
   s.file = path;
@@ -228,7 +255,11 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       s.input.frames = r.integer(n["frames"], "input.frames");
       if (s.input.frames < 1) r.fail(n["frames"], "input.frames", "must be at least 1");
     }
-    if (n["fps"]) s.input.fps = r.positive(n["fps"], "input.fps");
+    if (n["fps"]) {
+      s.input.fps = r.positive(n["fps"], "input.fps");
+      if (s.input.fps > 1000.0)
+        r.fail(n["fps"], "input.fps", "at most 1000 frames per second, found " + n["fps"].Scalar());
+    }
   }
 
   require(r, root, "camera", "");

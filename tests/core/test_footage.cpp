@@ -207,14 +207,13 @@ TEST(Footage, ImageSequenceFromOne) {
   EXPECT_THROW(footage.frame(5), std::out_of_range);
 }
 
-TEST(Footage, ImageSequenceFromZeroStopsAtGapAndConvertsGray) {
+TEST(Footage, ImageSequenceFromZeroConvertsGray) {
   TempDir dir;
   cv::Mat gray(kSize, CV_8UC1);
   for (int k = 0; k < 3; ++k) {
     gray.setTo(cv::Scalar(40 * k + 10));
     ASSERT_TRUE(cv::imwrite((dir / ("img_" + std::to_string(k) + ".png")).string(), gray));
   }
-  ASSERT_TRUE(cv::imwrite((dir / "img_4.png").string(), gray));  // after a gap: not included
   Footage footage = Footage::open_sequence((dir / "img_%d.png").string());
   EXPECT_EQ(footage.frame_count(), 3);
   EXPECT_EQ(footage.fps(), 30.0);
@@ -275,6 +274,18 @@ TEST(FootageBadInput, EmptyImageSequence) {
   expect_input_error([&] { Footage::open_sequence(pattern); }, pattern, "empty image sequence");
   expect_input_error([&] { Footage::open_sequence(pattern, 30.0, 7); }, pattern,
                      "frames_0007.png' does not exist");
+}
+
+TEST(FootageBadInput, ImageSequenceWithAGap) {
+  // A missing frame in the middle is a broken render, not the end of the clip.
+  TempDir dir;
+  const cv::Mat gray(kSize, CV_8UC1, cv::Scalar(10));
+  for (int k : {0, 1, 2, 4})
+    ASSERT_TRUE(cv::imwrite((dir / ("img_" + std::to_string(k) + ".png")).string(), gray));
+  const std::string pattern = (dir / "img_%d.png").string();
+  expect_input_error([&] { Footage::open_sequence(pattern); }, pattern,
+                     "the image sequence has a gap: '" + (dir / "img_3.png").string() +
+                         "' is missing but '" + (dir / "img_4.png").string() + "' exists");
 }
 
 TEST(FootageBadInput, SequencePatternWithoutIntegerField) {

@@ -193,6 +193,16 @@ TEST(PoseFileBadInput, RotationVectorWhoseLengthOverflows) {
   expect_bad(kGood16 + "1.7e308 1.7e308 1.7e308 0 0 1\n", 2, "rotation vector is too long");
 }
 
+TEST(PoseFileBadInput, TranslationFartherThanAnyFilmedObject) {
+  // 1e20 m stopped the ray tracer on an assertion; the file's line says it instead.
+  expect_bad(kGood16 + "0 0 0 0 0 1e20\n", 2, "the translation is 1e+20 m from the camera");
+  expect_bad("1 0 0 0 0 1 0 -2e9 0 0 1 1 0 0 0 1\n", 1, "beyond 1e+09 m");
+}
+
+TEST(PoseFile, IgnoresAByteOrderMark) {
+  EXPECT_EQ(pbve::parse_pose_file("\xEF\xBB\xBF" + kGood16, "p.txt").size(), 1);
+}
+
 TEST(PoseFileBadInput, NotARotation) {
   // A scale of 1.1 along x: R^T R - I has 0.21 on the diagonal.
   expect_bad("1.1 0 0 0 0 1 0 0 0 0 1 1 0 0 0 1\n", 1, "max |R^T R - I| = 0.21");

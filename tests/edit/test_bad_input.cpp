@@ -296,6 +296,21 @@ TEST_F(BadInput, EmptyImageSequence) {
 TEST_F(BadInput, FramesOutsideTheFootage) {
   expect_error(edit("--frames 10:20"),
                {"clip.mp4: frames 10:20 requested, but the footage has 3 frames"});
+  // An end past the footage is not cut short silently.
+  expect_error(edit("--frames 1:200"),
+               {"clip.mp4: frames 1:200 requested, but the footage has 3 frames (0:3)"});
+}
+
+TEST_F(BadInput, FramesThatAreNotWholeNumbersOrGivenTwice) {
+  for (const auto& [option, message] :
+       {std::pair<std::string, std::string>{"--frames 1x:3", "expects A:B with whole numbers"},
+        {"--frames -1:3", "frame numbers start at 0"},
+        {"--frames 0:1 --frames 1:2", "option --frames given twice"}}) {
+    const CmdResult r = edit(option);
+    EXPECT_EQ(r.status, 2) << option << "\n" << r.output;
+    EXPECT_NE(r.output.find(message), std::string::npos) << option << "\n" << r.output;
+    expect_no_output();
+  }
 }
 
 // ---- the poses ---------------------------------------------------------------------------------
@@ -422,6 +437,40 @@ TEST_F(BadInput, BackgroundPlateOfTheWrongSize) {
   expect_error(edit(), {"plate_true.png: background plate is 20x10, the footage is 64x48"});
 }
 
+TEST_F(BadInput, RefinementTooFineForAnyEditIsRefusedAtOnce) {
+  // A length in millimetres where metres are meant: billions of vertices, the memory filled.
+  replace(scene, "refine: 0.05", "refine: 0.000001");
+  expect_error(edit(), {location("refine:") + "key 'object.refine': refining to edges of 1e-06 m "
+                                              "would make about",
+                        "vertices, more than 2000000"});
+}
+
+TEST_F(BadInput, PoseFartherThanAnyFilmedObject) {
+  set_pose_value(2, 12, "1e20");  // t_z of the second pose
+  expect_error(edit(), {"poses.txt:2: the translation is 1e+20 m from the camera"});
+}
+
+TEST_F(BadInput, ObjectBehindTheCameraInEveryFrame) {
+  // Poses of an OpenGL camera (looking along -z): t_z negated in every pose.
+  for (int line = 1; line <= 3; ++line) {
+    std::istringstream in(read_text(dir / "poses.txt"));
+    std::string text;
+    for (int l = 1; std::getline(in, text) && l < line; ++l) {
+    }
+    std::istringstream fields(text);
+    std::string field;
+    for (int k = 1; fields >> field; ++k)
+      if (k == 12) set_pose_value(line, 12, std::to_string(-std::stod(field)));
+  }
+  expect_error(edit(), {"poses.txt: the object is behind the camera in every edited frame",
+                        "OpenCV camera axes"});
+}
+
+TEST_F(BadInput, DuplicateSceneKey) {
+  write_text(scene, read_text(scene) + "control:\n  enabled: false\n");
+  expect_error(edit(), {"key 'control': key given twice (first at line"});
+}
+
 // ---- outputs -----------------------------------------------------------------------------------
 
 TEST_F(BadInput, OutputVideoEqualToTheInputVideo) {
@@ -538,6 +587,37 @@ TEST_F(BadInput, SynthChecksItsOptionsBeforeWritingAnything) {
   EXPECT_NE(r.status, 0) << r.output;
   EXPECT_NE(r.output.find("fps must be above 0 and at most 1000"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "new"));
+}
+
+TEST_F(BadInput, PlotOntoItsReportOrWithTheWrongLabels) {
+  ASSERT_EQ(edit().status, 0);
+  const fs::path report = dir / "report.json";
+  const std::string before = read_text(report);
+  CmdResult r = pbve_cmd("plot " + report.string() + " -o " + report.string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("the plot is a PNG image"), std::string::npos) << r.output;
+  r = pbve_cmd("plot " + report.string() + " --labels a,b");
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("--labels gives 2 labels for 1 reports"), std::string::npos) << r.output;
+  EXPECT_EQ(read_text(report), before);
+  EXPECT_FALSE(fs::exists(dir / "report.png"));
+}
+
+TEST_F(BadInput, BenchOptionsAreCheckedBeforeAnyWork) {
+  fs::create_directory(dir / "work");
+  write_text(dir / "work" / "scene.yaml", "mine\n");
+  for (const auto& [option, message] :
+       {std::pair<std::string, std::string>{"--vertices 0", "a target must be positive, got 0"},
+        {"--vertices -5", "a target must be positive, got -5"},
+        {"--modes ''", "--modes is empty"},
+        {"--work " + (dir / "work").string(), "must be a new or empty folder"}}) {
+    const CmdResult r =
+        pbve_cmd("bench -o " + (dir / "bench.json").string() + " --quiet " + option);
+    EXPECT_EQ(r.status, 2) << option << "\n" << r.output;
+    EXPECT_NE(r.output.find(message), std::string::npos) << option << "\n" << r.output;
+  }
+  EXPECT_EQ(read_text(dir / "work" / "scene.yaml"), "mine\n");
+  EXPECT_FALSE(fs::exists(dir / "bench.json"));
 }
 
 TEST_F(BadInput, PlotOfAnInvalidReportWritesNoPlot) {

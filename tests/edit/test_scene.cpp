@@ -163,6 +163,19 @@ TEST(SceneErrors, EngineNameMustBeAnIdentifier) {
   EXPECT_NE(e.find("expected an engine name"), std::string::npos) << e;
 }
 
+TEST(SceneErrors, DuplicateKeysNameTheSecondAndTheFirstLine) {
+  // YAML forbids two equal keys in one mapping; the parser would keep the first silently.
+  std::string text = kFull;
+  text.replace(text.find("fx: 600,"), 8, "fx: 600, fx: 300,");
+  std::string e = error_of(text);
+  EXPECT_NE(e.find("/scenes/s.yaml:2: key 'camera.fx': key given twice (first at line 2)"),
+            std::string::npos)
+      << e;
+  e = error_of(std::string(kFull) + "control:\n  enabled: false\n");
+  EXPECT_NE(e.find(":24: key 'control': key given twice (first at line 17)"), std::string::npos)
+      << e;
+}
+
 TEST(SceneErrors, WrongTypeNamesKey) {
   std::string text = kFull;
   text.replace(text.find("fx: 600"), 7, "fx: six");

@@ -23,6 +23,7 @@ class Footage {
   static Footage open_video(const std::filesystem::path& path);
   /// An image sequence given as a printf pattern, e.g. "frames/%04d.png"; frames are numbered
   /// from `first_index` (the first existing of 0 and 1 when -1) until the first missing file.
+  /// Throws InputError when a file after it exists (within 1000 numbers): a gap, not an end.
   static Footage open_sequence(const std::string& pattern, double fps = 30.0, int first_index = -1);
   /// A single image repeated `frames` times (the paper's single-picture mode).
   static Footage open_image(const std::filesystem::path& path, int frames, double fps = 30.0);
