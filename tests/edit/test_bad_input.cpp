@@ -466,6 +466,16 @@ TEST_F(BadInput, ObjectBehindTheCameraInEveryFrame) {
                         "OpenCV camera axes"});
 }
 
+TEST_F(BadInput, NegativeRegionStiffnessNamesItsLine) {
+  replace(scene, "material: cloth", "material: elastic");
+  replace(scene, "  substeps: 3\n",
+          "  substeps: 3\n  regions:\n    - {box: {min: [-1, -1, -1], max: [1, 1, 1]},\n"
+          "       volume_stiffness: -5}\n");
+  expect_error(edit(), {location("volume_stiffness: -5") +
+                        "key 'simulation.regions.volume_stiffness': must be positive (Pa), found "
+                        "-5"});
+}
+
 TEST_F(BadInput, DuplicateSceneKey) {
   write_text(scene, read_text(scene) + "control:\n  enabled: false\n");
   expect_error(edit(), {"key 'control': key given twice (first at line"});

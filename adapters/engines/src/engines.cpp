@@ -110,6 +110,9 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
         fail_key(r, "regions." + key, value_line.second,
                  "unknown region parameter for engine mass_spring (a region sets "
                  "volume_stiffness)");
+      if (!(value_line.first > 0.0))
+        fail_key(r, "regions." + key, value_line.second,
+                 "must be positive (Pa), found " + std::to_string(value_line.first));
       region.volume_stiffness = value_line.first;
     }
     p.regions.push_back(region);
