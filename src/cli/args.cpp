@@ -41,6 +41,8 @@ bool Args::flag(const std::string& name) {
   auto it = std::find(m_args.begin(), m_args.end(), name);
   if (it == m_args.end()) return false;
   m_args.erase(it);
+  if (std::find(m_args.begin(), m_args.end(), name) != m_args.end())
+    throw UsageError("option " + name + " given twice");
   return true;
 }
 

@@ -127,7 +127,10 @@ const char* kHelp =
     "  --size WxH                 clip size (default: 640x480)\n"
     "  --work DIR                 keep the clip, videos and reports in DIR (default: a\n"
     "                             temporary folder, removed at the end)\n"
-    "  --quiet                    no progress lines";
+    "  --quiet                    no progress lines\n"
+    "\n"
+    "exit status: 0 when the JSON file was written, 1 on error, 2 on bad usage, 130 when\n"
+    "interrupted (Ctrl-C or SIGTERM: the temporary folder removed, no JSON written).";
 
 }  // namespace
 
@@ -186,6 +189,7 @@ int run_bench(const std::vector<std::string>& argv) {
   if (std::error_code ec; !work_arg.empty() && fs::exists(work_arg, ec) &&
                           !(fs::is_directory(work_arg, ec) && fs::is_empty(work_arg, ec)))
     throw UsageError("--work " + work_arg.string() + " must be a new or empty folder");
+  const InterruptGuard guard;  // from here on a signal stops at the next check, cleaning up
   const bool keep = !work_arg.empty();
   const fs::path work =
       keep ? work_arg : fs::temp_directory_path() / ("pbve-bench-" + std::to_string(::getpid()));
@@ -206,7 +210,7 @@ int run_bench(const std::vector<std::string>& argv) {
   check_engine(base);
   const Mesh mesh = load_mesh(clip.mesh);
 
-  const InterruptGuard guard;
+  if (interrupted()) throw Interrupted("interrupted: no benchmark file written");
   json runs = json::array();
   for (const int target : targets) {
     const auto [refine, vertices] = refine_for(mesh, target);

@@ -63,8 +63,9 @@ int run_edit(const std::vector<std::string>& argv) {
         "the parts whose texture is unknown turned away from the camera, textures the simulated\n"
         "object from the footage, composites it over the background plate, and writes the edited\n"
         "video and a JSON report. Outputs are written under a temporary name and renamed when\n"
-        "complete; Ctrl-C finishes the current frame and writes a valid, shorter video and a\n"
-        "report marked incomplete.\n"
+        "complete; Ctrl-C or SIGTERM finishes the current frame and writes a valid, shorter\n"
+        "video and a report marked incomplete (while tracking, `poses: track`, they stop with\n"
+        "nothing written).\n"
         "\n"
         "options:\n"
         "  -o, --output OUT   edited video (default: the scene's output.video)\n"
@@ -76,7 +77,8 @@ int run_edit(const std::vector<std::string>& argv) {
         "  --quiet            no progress output\n"
         "\n"
         "exit status: 0 when the video and the report were written, 1 on error, 2 on bad usage,\n"
-        "130 when interrupted (the partial results are still written). A frame whose simulation\n"
+        "130 when interrupted (the partial results are still written, unless interrupted while\n"
+        "tracking). A frame whose simulation\n"
         "diverges is recomputed with 2x then 4x the substeps; if it still diverges the run stops\n"
         "with status 1, keeping the frames edited so far (report marked incomplete).");
     return 0;

@@ -18,15 +18,23 @@ extern "C" void on_signal(int sig) {
 
 }  // namespace
 
+namespace {
+// The dispositions before the guard: restored after it. A signal the process inherited as
+// ignored (a background job of a script) stays ignored.
+void (*g_previous[2])(int) = {SIG_DFL, SIG_DFL};
+constexpr int kSignals[2] = {SIGINT, SIGTERM};
+}  // namespace
+
 InterruptGuard::InterruptGuard() {
   g_interrupted = false;
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
+  for (int k = 0; k < 2; ++k) {
+    g_previous[k] = std::signal(kSignals[k], on_signal);
+    if (g_previous[k] == SIG_IGN) std::signal(kSignals[k], SIG_IGN);
+  }
 }
 
 InterruptGuard::~InterruptGuard() {
-  std::signal(SIGINT, SIG_DFL);
-  std::signal(SIGTERM, SIG_DFL);
+  for (int k = 0; k < 2; ++k) std::signal(kSignals[k], g_previous[k]);
 }
 
 bool interrupted() {

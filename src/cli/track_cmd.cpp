@@ -77,7 +77,8 @@ int run_track(const std::vector<std::string>& argv) {
         "  --quiet                   no progress output\n"
         "\n"
         "exit status: 0 on success, 1 on error or when the object left the view for good (the\n"
-        "pose file is still written, `lost` from there), 2 on bad usage.");
+        "pose file is still written, `lost` from there), 2 on bad usage, 130 when interrupted\n"
+        "(Ctrl-C or SIGTERM: nothing written).");
     return 0;
   }
   const std::string camera_spec = args.value("--camera");
@@ -131,6 +132,7 @@ int run_track(const std::vector<std::string>& argv) {
   PoseTrack true_track;
   if (!truth.empty()) true_track = load_pose_file(truth);
 
+  const InterruptGuard guard;  // before the overlay's temporary file exists
   std::unique_ptr<VideoWriter> writer;
   if (!overlay.empty())
     writer = std::make_unique<VideoWriter>(overlay, footage.fps(),
@@ -173,7 +175,6 @@ int run_track(const std::vector<std::string>& argv) {
                      info.lost ? "lost" : "tracked", info.inliers, info.correspondences);
     }
   };
-  const InterruptGuard guard;
   const TrackResult r = track_footage(footage, mesh, camera, start, TrackOptions{}, on_frame);
   if (!quiet && tty) std::fputc('\n', stderr);
   save_pose_file(r.track, output);

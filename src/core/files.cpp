@@ -36,7 +36,10 @@ bool same_file(const fs::path& a, const fs::path& b) {
   if (a.empty() || b.empty()) return false;
   std::error_code ec;
   if (fs::exists(a, ec) && fs::exists(b, ec)) return fs::equivalent(a, b, ec);
-  return fs::weakly_canonical(a, ec) == fs::weakly_canonical(b, ec);
+  // Absolute first: weakly_canonical leaves a relative path whose first part does not exist
+  // as it is ("x" against "./x").
+  return fs::weakly_canonical(fs::absolute(a, ec), ec) ==
+         fs::weakly_canonical(fs::absolute(b, ec), ec);
 }
 
 fs::path partial_path(const fs::path& path) {
@@ -55,7 +58,8 @@ fs::path reserve_partial(const fs::path& path) {
       name += path.extension();
       tmp = path.parent_path() / name;
     }
-    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    // 0666: the user's umask applies, as for a file the writer would create itself.
+    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     if (fd >= 0) {
       ::close(fd);
       return tmp;

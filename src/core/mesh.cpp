@@ -227,7 +227,7 @@ void scale_about_centroid(Mesh& mesh, double factor) {
   mesh.vertices = ((mesh.vertices.rowwise() - centroid) * factor).rowwise() + centroid;
 }
 
-Mesh refine_mesh(const Mesh& mesh, double max_edge_length) {
+Mesh refine_mesh(const Mesh& mesh, double max_edge_length, int max_vertices) {
   if (!std::isfinite(max_edge_length) || max_edge_length <= 0.0)
     throw std::invalid_argument("refine_mesh: max_edge_length must be finite and positive, got " +
                                 std::to_string(max_edge_length));
@@ -274,6 +274,10 @@ Mesh refine_mesh(const Mesh& mesh, double max_edge_length) {
 
     // 2. One midpoint per marked edge: vertex nv + position in `marked`.
     const int nv = static_cast<int>(xyz.size() / 3);
+    if (max_vertices > 0 && static_cast<double>(nv) + static_cast<double>(marked.size()) >
+                                static_cast<double>(max_vertices))
+      throw std::length_error("refine_mesh: more than " + std::to_string(max_vertices) +
+                              " vertices");
     xyz.resize(xyz.size() + marked.size() * 3);
     for (std::size_t e = 0; e < marked.size(); ++e) {
       const int a = key_first(marked[e]), b = key_second(marked[e]);

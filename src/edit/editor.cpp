@@ -45,17 +45,11 @@ double ms_since(Clock::time_point t0) {
 
 // A refinement beyond this many vertices is refused (about 60x example 1's finest benchmark
 // mesh: hours per frame).
-constexpr double kMaxRefinedVertices = 2e6;
+constexpr int kMaxRefinedVertices = 2000000;
 
 std::string format_length(double metres) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.3g m", metres);
-  return buf;
-}
-
-std::string format_count(double n) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, n < 1e7 ? "%.0f" : "%.2g", n);
   return buf;
 }
 
@@ -82,7 +76,7 @@ bool in_sequence(const fs::path& path, const std::string& pattern) {
     if (name[i] == '%') {
       size_t j = i + 1;
       while (j < name.size() && std::isdigit(static_cast<unsigned char>(name[j])) != 0) ++j;
-      if (j < name.size() && name[j] == 'd') {
+      if (j < name.size() && (name[j] == 'd' || name[j] == 'i')) {  // as Footage accepts
         re += "-?[0-9]+";
         i = j;
         continue;
@@ -345,12 +339,42 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   if (!findings.ok())
     report.warnings.push_back(scene.object.mesh.string() + ": " + findings.summary() +
                               " They are simulated as given: check the edited video there.");
+  // Fracture and refinement before tracking, so that their errors come before any tracking
+  // work; tracking follows the mesh as given.
+  const Mesh given = scene.object.track ? mesh : Mesh{};
+  if (scene.object.fracture_pieces > 0) {
+    FractureOptions fo;
+    fo.pieces = scene.object.fracture_pieces;
+    fo.seed = static_cast<std::uint64_t>(scene.object.fracture_seed);
+    try {
+      mesh = voronoi_fracture(mesh, fo);
+    } catch (const InputError& e) {
+      throw scene_error(scene, "object.fracture", scene.object.mesh.string() + ": " + e.message());
+    }
+  }
+  const int original_vertices = mesh.num_vertices();
+  if (scene.object.refine > 0) {
+    // A refinement that cannot be edited (a length in the wrong unit) is refused before it
+    // fills the memory.
+    try {
+      mesh = refine_mesh(mesh, scene.object.refine, kMaxRefinedVertices);
+    } catch (const std::length_error&) {
+      double longest = 0.0;
+      for (Eigen::Index t = 0; t < mesh.triangles.rows(); ++t)
+        longest = std::max(longest, longest_edge(mesh, t));
+      throw scene_error(scene, "object.refine",
+                        "refining to edges of " + format_length(scene.object.refine) +
+                            " would make more than " + std::to_string(kMaxRefinedVertices) +
+                            " vertices (the mesh's longest edge is " + format_length(longest) +
+                            "; lengths are in the mesh's units, metres)");
+    }
+  }
+
   PoseTrack track;
   if (scene.object.track) {
-    // Tracking first, on the mesh as given (before fracture and refinement).
     const Pose initial = [&] {
       if (!scene.object.correspondences.empty())
-        return pose_from_correspondence_file(scene.object.correspondences, mesh, camera);
+        return pose_from_correspondence_file(scene.object.correspondences, given, camera);
       const PoseTrack first = load_pose_file(scene.object.initial_pose);
       if (first.size() == 0 || !first.poses[0])
         throw InputError("the first line must be a pose (not `lost`) for frame 0",
@@ -361,7 +385,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     TrackResult tracked;
     try {
       tracked = track_footage(
-          frames, mesh, camera, initial, TrackOptions{},
+          frames, given, camera, initial, TrackOptions{},
           [&](int t, const cv::Mat&, const std::optional<Pose>&, const TrackFrameInfo&) {
             if (cb.cancel && cb.cancel())
               throw EditCancelled("cancelled while tracking, at frame " + std::to_string(t) +
@@ -389,38 +413,6 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     track = load_pose_file(scene.object.poses);
   }
   const fs::path& pose_source = scene.object.track ? tracked_poses : scene.object.poses;
-
-  if (scene.object.fracture_pieces > 0) {
-    FractureOptions fo;
-    fo.pieces = scene.object.fracture_pieces;
-    fo.seed = static_cast<std::uint64_t>(scene.object.fracture_seed);
-    try {
-      mesh = voronoi_fracture(mesh, fo);
-    } catch (const InputError& e) {
-      throw scene_error(scene, "object.fracture", scene.object.mesh.string() + ": " + e.message());
-    }
-  }
-  const int original_vertices = mesh.num_vertices();
-  if (scene.object.refine > 0) {
-    // Splitting a triangle whose longest edge is l until no edge exceeds r makes about
-    // (l / r)^2 triangles, half as many vertices: refuse a refinement that cannot be edited
-    // (a length in the wrong unit) before it fills the memory.
-    double estimate = mesh.num_vertices(), longest = 0.0;
-    for (Eigen::Index t = 0; t < mesh.triangles.rows(); ++t) {
-      const double edge = longest_edge(mesh, t);
-      const double splits = std::ceil(edge / scene.object.refine);
-      estimate += 0.5 * splits * splits;
-      longest = std::max(longest, edge);
-    }
-    if (!(estimate <= kMaxRefinedVertices))
-      throw scene_error(scene, "object.refine",
-                        "refining to edges of " + format_length(scene.object.refine) +
-                            " would make about " + format_count(estimate) +
-                            " vertices, more than " + format_count(kMaxRefinedVertices) +
-                            " (the mesh's longest edge is " + format_length(longest) +
-                            "; lengths are in the mesh's units, metres)");
-    mesh = refine_mesh(mesh, scene.object.refine);
-  }
 
   const int frames = footage.frame_count();
   if (!scene.input.image.empty() && track.size() == 1)
@@ -465,12 +457,13 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
       pose[static_cast<size_t>(t)] = *track.poses[static_cast<size_t>(from)];
       texture_frame[static_cast<size_t>(t)] = from;
     }
-    // Behind the camera in every edited frame: nothing of the object is seen, the output would
-    // be the footage unchanged. The usual cause is another camera convention.
-    const Eigen::Vector3d centre = mesh.vertices.colwise().mean().transpose();
+    // Behind the camera in every edited frame (no vertex in front): nothing of the object is
+    // seen, the output would be the footage unchanged. The usual cause is another camera
+    // convention.
     bool seen = false;
     for (int t = first; t < end && !seen; ++t)
-      seen = pose[static_cast<size_t>(t)].apply(centre).z() > 0;
+      seen = (pose[static_cast<size_t>(t)].apply(mesh.vertices).col(2).array() > 0.0).any();
+    const Eigen::Vector3d centre = mesh.vertices.colwise().mean().transpose();
     if (!seen)
       throw InputError("the object is behind the camera in every edited frame (its centre at z = " +
                            format_length(pose[static_cast<size_t>(first)].apply(centre).z()) +

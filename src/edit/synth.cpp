@@ -259,8 +259,8 @@ SynthRecipe synth_recipe(const SynthOptions& o) {
   if (o.supersample < 1 || o.supersample > 8)
     throw InputError("supersample must be 1 to 8, got " + std::to_string(o.supersample), {}, 0,
                      "--supersample");
-  if (!(o.fps > 0.0 && o.fps <= 1000.0))
-    throw InputError("fps must be above 0 and at most 1000, got " + std::to_string(o.fps), {}, 0,
+  if (!(o.fps > 0.0 && o.fps <= 1e6))
+    throw InputError("fps must be above 0 and at most 1e6, got " + std::to_string(o.fps), {}, 0,
                      "--fps");
   SynthRecipe r;
   r.camera.width = o.width;

@@ -86,6 +86,16 @@ TEST(Files, SameFileThroughLinksAndSpellings) {
   EXPECT_TRUE(pbve::same_file(dir / "sub" / ".." / "new.txt", dir / "new.txt"));
   EXPECT_FALSE(pbve::same_file(dir / "a.txt", dir / "new.txt"));
   EXPECT_FALSE(pbve::same_file(dir / "a.txt", fs::path()));
+  // Two names of a file that does not exist yet, relative to the current folder.
+  const fs::path cwd = fs::current_path();
+  fs::current_path(dir.path());
+  const bool bare = pbve::same_file("new.txt", "./new.txt");
+  const bool folder = pbve::same_file("new.txt", dir / "new.txt");
+  const bool other = pbve::same_file("new.txt", "./other.txt");
+  fs::current_path(cwd);
+  EXPECT_TRUE(bare);
+  EXPECT_TRUE(folder);
+  EXPECT_FALSE(other);
 }
 
 TEST(Files, AVideoThatCouldNotBeWrittenIsNotMovedIntoPlace) {

@@ -848,6 +848,18 @@ TEST(MeshRefine, UnitBoxToTenthKeepsShapeAndClosedness) {
   EXPECT_EQ(r.num_vertices() - 3 * r.num_triangles() / 2 + r.num_triangles(), 2);
 }
 
+TEST(MeshRefine, AVertexCapStopsBeforeTheMemoryGoes) {
+  const Mesh box = make_box();
+  const Mesh r = refine_mesh(box, 0.1);
+  // A cap at the result's size changes nothing; one below it throws before allocating.
+  const Mesh capped = refine_mesh(box, 0.1, r.num_vertices());
+  EXPECT_TRUE(capped.vertices == r.vertices);
+  EXPECT_TRUE(capped.triangles == r.triangles);
+  EXPECT_THROW(refine_mesh(box, 0.1, r.num_vertices() - 1), std::length_error);
+  // A length in micrometres where metres are meant: stopped at the cap, not after billions.
+  EXPECT_THROW(refine_mesh(box, 1e-6, 100000), std::length_error);
+}
+
 TEST(MeshRefine, PartsAndInteriorFlagsAreInherited) {
   Mesh m = make_two_part_mesh_with_interior();
   m.vertices = m.vertices.topRows(8).eval();  // both parts on the same 8 vertices

@@ -146,6 +146,24 @@ class SharesStepCount : public ParticleSimulator {
   std::shared_ptr<std::atomic<int>> m_count = std::make_shared<std::atomic<int>>(0);
 };
 
+// Broken: its clones cannot step.
+class ClonesThrow : public ParticleSimulator {
+ public:
+  using ParticleSimulator::ParticleSimulator;
+  void step(const pbve::StepInput& in) override {
+    if (m_clone) throw std::runtime_error("clone cannot step");
+    ParticleSimulator::step(in);
+  }
+  std::unique_ptr<Simulator> clone() const override {
+    auto c = std::make_unique<ClonesThrow>(*this);
+    c->m_clone = true;
+    return c;
+  }
+
+ private:
+  bool m_clone = false;
+};
+
 template <class T>
 ConformanceCase broken_case() {
   ConformanceCase c = reference_case();
@@ -204,6 +222,12 @@ TEST(ConformanceSuite, CatchesStateSharedBetweenClones) {
   const auto r = pbve::testing::check_clones_in_parallel(broken_case<SharesStepCount>());
   EXPECT_FALSE(r);
   EXPECT_NE(std::string(r.message()).find("clone"), std::string::npos) << r.message();
+}
+
+TEST(ConformanceSuite, AClonesErrorOnEitherThreadIsAnErrorNotAnAbort) {
+  // Both threads' steps throw: the check joins the other thread before rethrowing.
+  EXPECT_THROW(pbve::testing::check_clones_in_parallel(broken_case<ClonesThrow>()),
+               std::runtime_error);
 }
 
 TEST(CheckSimulator, NamesTheEngineAndTheFirstInconsistency) {

@@ -80,7 +80,9 @@ void scale_about_centroid(Mesh& mesh, double factor);
 /// Splits edges until no edge is longer than `max_edge_length` (mesh units). Original
 /// vertices keep their indices (new vertices are appended), parts and interior flags are
 /// inherited by the sub-triangles, and shared edges are split consistently (no T-junctions).
-Mesh refine_mesh(const Mesh& mesh, double max_edge_length);
+/// With `max_vertices` > 0, throws std::length_error as soon as the result would have more
+/// vertices than that (before allocating them).
+Mesh refine_mesh(const Mesh& mesh, double max_edge_length, int max_vertices = 0);
 
 /// Per-triangle unnormalized normals (b - a) x (c - a), #F by 3.
 Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles);

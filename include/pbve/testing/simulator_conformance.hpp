@@ -326,17 +326,22 @@ inline ::testing::AssertionResult check_clones_in_parallel(const ConformanceCase
   auto b = sim->clone();
   const Vertices alone = detail::run(*sim, rest, 30, c.steps, c.dt);
   Vertices pa, pb;
-  std::exception_ptr error;
+  std::exception_ptr error_a, error_b;
   std::thread other([&] {
     try {
       pb = detail::run(*b, rest, 30, c.steps, c.dt);
     } catch (...) {
-      error = std::current_exception();
+      error_b = std::current_exception();
     }
   });
-  pa = detail::run(*a, rest, 30, c.steps, c.dt);
-  other.join();
-  if (error) std::rethrow_exception(error);
+  try {
+    pa = detail::run(*a, rest, 30, c.steps, c.dt);
+  } catch (...) {
+    error_a = std::current_exception();
+  }
+  other.join();  // before any exception leaves: a joinable thread's destructor terminates
+  if (error_a) std::rethrow_exception(error_a);
+  if (error_b) std::rethrow_exception(error_b);
   auto r = detail::bit_equal(alone, pa, "a clone stepped while another clone steps on a thread");
   if (!r) return r;
   return detail::bit_equal(alone, pb, "a clone stepped on a thread while another clone steps");
