@@ -91,7 +91,15 @@ int run_synth(const std::vector<std::string>& argv) {
   }
   const auto pos = args.positional();
   if (pos.size() != 1) throw UsageError("expected one output folder");
-  const SynthOutput out = synthesize(o, pos[0]);
+  SynthOutput out;
+  try {
+    out = synthesize(o, pos[0]);
+  } catch (const InputError& e) {
+    // An option's value out of range (checked before any file is written) is bad usage.
+    if (e.file().empty() && e.key().rfind("--", 0) == 0)
+      throw UsageError(e.key() + ": " + e.message());
+    throw;
+  }
   std::printf("wrote %s\n      %s\n      %s\n      %s\nedit it with: pbve edit %s\n",
               out.video.c_str(), out.mesh.c_str(), out.poses.c_str(), out.scene.c_str(),
               out.scene.c_str());

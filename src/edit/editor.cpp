@@ -309,8 +309,12 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   check_input_file(scene, scene.background.plate, "background.plate", "background plate");
   check_output_path(result.video, scene, "output.video", options.video.empty());
   check_output_path(result.report_path, scene, "output.report", options.report.empty());
-  if (same_file(result.video, result.report_path))
-    throw scene_error(scene, "output.report", "the video and the report would be the same file");
+  if (same_file(result.video, result.report_path)) {
+    const std::string message = "the video and the report would be the same file";
+    if (options.video.empty() && options.report.empty())
+      throw scene_error(scene, "output.report", message);
+    throw InputError(message, result.report_path);  // (given on the command line)
+  }
   for (const fs::path& out : {result.video, result.report_path})
     if (same_file(tracked_poses, out))
       throw scene_error(scene, "object.tracked_poses",

@@ -299,7 +299,16 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
              "'poses: track' needs the pose in the first frame: give exactly one of "
              "object.initial_pose (a pose file) or object.correspondences (at least 4 "
              "'VERTEX u v' or 'x y z u v' lines)");
-    if (n["scale"]) s.object.scale = r.positive(n["scale"], "object.scale");
+    if (n["scale"]) {
+      s.object.scale = r.positive(n["scale"], "object.scale");
+      // A small enlargement over the silhouette, not a change of units (1000 blew the mesh
+      // over the whole frame and blacked the background out without a word).
+      if (s.object.scale < 0.9 || s.object.scale > 1.5)
+        r.fail(n["scale"], "object.scale",
+               "the mesh's small enlargement over the object's silhouette (paper: 1.01) must "
+               "be between 0.9 and 1.5, found " +
+                   n["scale"].Scalar() + " (convert a mesh in other units before)");
+    }
     if (n["refine"]) s.object.refine = r.positive(n["refine"], "object.refine");
     if (n["fracture"]) {
       const YAML::Node f = n["fracture"];

@@ -256,6 +256,8 @@ cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
 SynthRecipe synth_recipe(const SynthOptions& o) {
   if (o.frames < 1) throw InputError("frames must be at least 1", {}, 0, "--frames");
   if (o.width < 16 || o.height < 16) throw InputError("image size too small", {}, 0, "--size");
+  if (o.width > 16384 || o.height > 16384)
+    throw InputError("image size too large (at most 16384 pixels a side)", {}, 0, "--size");
   if (o.supersample < 1 || o.supersample > 8)
     throw InputError("supersample must be 1 to 8, got " + std::to_string(o.supersample), {}, 0,
                      "--supersample");

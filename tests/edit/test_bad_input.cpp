@@ -498,6 +498,19 @@ TEST_F(BadInput, ReportEqualToTheMeshNamesTheKey) {
   EXPECT_EQ(read_text(dir / "object.obj"), before);
 }
 
+TEST_F(BadInput, VideoAndReportTheSameFileOnTheCommandLine) {
+  // Two spellings of one new file in the current folder; the message names no scene key.
+  const CmdResult r =
+      pbve_cmd("edit " + scene.string() + " --quiet --no-control -o " + (dir / "e.mkv").string() +
+               " --report " + (dir / "." / "e.mkv").string());
+  EXPECT_EQ(r.status, 1) << r.output;
+  EXPECT_NE(r.output.find("e.mkv: the video and the report would be the same file"),
+            std::string::npos)
+      << r.output;
+  EXPECT_EQ(r.output.find("key 'output.report'"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "e.mkv"));
+}
+
 TEST_F(BadInput, VideoAndReportTheSameFile) {
   replace(scene, "report: report.json", "report: edited.mp4");
   expect_error(edit(), {location("output:") + "key 'output.report': the video and the report "
@@ -592,12 +605,16 @@ TEST_F(BadInput, SynthChecksItsOptionsBeforeWritingAnything) {
   fs::create_directory(mine);
   write_text(mine / "poses.txt", "precious\n");
   CmdResult r = pbve_cmd("synth --size 64x48 --frames 3 --supersample 0 " + mine.string());
-  EXPECT_NE(r.status, 0) << r.output;
+  EXPECT_EQ(r.status, 2) << r.output;  // bad usage
   EXPECT_NE(r.output.find("supersample must be 1 to 8, got 0"), std::string::npos) << r.output;
   EXPECT_EQ(read_text(mine / "poses.txt"), "precious\n");
   EXPECT_EQ(std::distance(fs::directory_iterator(mine), fs::directory_iterator{}), 1);
+  r = pbve_cmd("synth --size 100000x100000 " + mine.string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("--size: image size too large"), std::string::npos) << r.output;
+  EXPECT_EQ(read_text(mine / "poses.txt"), "precious\n");
   r = pbve_cmd("synth --size 64x48 --frames 3 --fps 1e308 " + (dir / "new").string());
-  EXPECT_NE(r.status, 0) << r.output;
+  EXPECT_EQ(r.status, 2) << r.output;
   EXPECT_NE(r.output.find("fps must be above 0 and at most 1e6"), std::string::npos) << r.output;
   EXPECT_FALSE(fs::exists(dir / "new"));
 }

@@ -176,6 +176,14 @@ TEST(SceneErrors, DuplicateKeysNameTheSecondAndTheFirstLine) {
       << e;
 }
 
+TEST(SceneErrors, ScaleIsAnEnlargementNotAUnitChange) {
+  std::string text = kFull;
+  text.replace(text.find("scale: 1.02"), 11, "scale: 1000");
+  const std::string e = error_of(text);
+  EXPECT_NE(e.find("/scenes/s.yaml:6: key 'object.scale'"), std::string::npos) << e;
+  EXPECT_NE(e.find("between 0.9 and 1.5, found 1000"), std::string::npos) << e;
+}
+
 TEST(SceneErrors, WrongTypeNamesKey) {
   std::string text = kFull;
   text.replace(text.find("fx: 600"), 7, "fx: six");
