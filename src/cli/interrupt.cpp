@@ -16,13 +16,11 @@ extern "C" void on_signal(int sig) {
   std::signal(sig, SIG_DFL);  // a second signal stops at once
 }
 
-}  // namespace
-
-namespace {
 // The dispositions before the guard: restored after it. A signal the process inherited as
 // ignored (a background job of a script) stays ignored.
 void (*g_previous[2])(int) = {SIG_DFL, SIG_DFL};
 constexpr int kSignals[2] = {SIGINT, SIGTERM};
+
 }  // namespace
 
 InterruptGuard::InterruptGuard() {

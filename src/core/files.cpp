@@ -64,9 +64,10 @@ fs::path reserve_partial(const fs::path& path) {
       ::close(fd);
       return tmp;
     }
-    if (errno != EEXIST || k >= 1000)
+    const int err = errno;  // before anything else can change it
+    if (err != EEXIST || k >= 1000)
       throw InputError("cannot create files in the output folder " + folder_of(path).string() +
-                           ": " + std::generic_category().message(errno),
+                           ": " + std::generic_category().message(err),
                        path);
   }
 }
