@@ -52,10 +52,15 @@ void axes(cv::Mat& img, const Panel& p, const std::string& title, const std::str
     const double v = p.log_y ? std::pow(10.0, p.y0 + t * (p.y1 - p.y0)) : p.y0 + t * (p.y1 - p.y0);
     cv::putText(img, fmt(v), {p.box.x - 70, y + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1,
                 cv::LINE_AA);
-    const int x = p.box.x + static_cast<int>(t * p.box.width);
-    cv::putText(img, fmt(std::round(p.x0 + t * (p.x1 - p.x0))),
-                {x - 10, p.box.y + p.box.height + 20}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1,
-                cv::LINE_AA);
+  }
+  // Frame numbers at whole frames: at most `ticks` intervals, fewer for a short report (two
+  // frames got 0 0 0 1 1 1).
+  const double span = p.x1 - p.x0;
+  const int xticks = std::clamp(static_cast<int>(std::lround(span)), 1, ticks);
+  for (int i = 0; i <= xticks; ++i) {
+    const double frame = std::round(p.x0 + span * i / xticks);
+    cv::putText(img, fmt(frame), {p.map(frame, 0.0).x - 10, p.box.y + p.box.height + 20},
+                cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1, cv::LINE_AA);
   }
   cv::rectangle(img, p.box, kInk, 1);
   cv::putText(img, title, {p.box.x, p.box.y - 12}, cv::FONT_HERSHEY_SIMPLEX, 0.6, kInk, 1,
