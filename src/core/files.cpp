@@ -42,22 +42,23 @@ bool same_file(const fs::path& a, const fs::path& b) {
          fs::weakly_canonical(fs::absolute(b, ec), ec);
 }
 
-fs::path partial_path(const fs::path& path) {
+namespace {
+// "name.partial.ext" (k = 1), "name.partial-k.ext" (k > 1).
+fs::path partial_name(const fs::path& path, int k) {
   fs::path name = path.stem();
-  name += ".partial";
+  name += k > 1 ? ".partial-" + std::to_string(k) : std::string(".partial");
   name += path.extension();
   return path.parent_path() / name;
+}
+}  // namespace
+
+fs::path partial_path(const fs::path& path) {
+  return partial_name(path, 1);
 }
 
 fs::path reserve_partial(const fs::path& path) {
   for (int k = 1;; ++k) {
-    fs::path tmp = partial_path(path);
-    if (k > 1) {
-      fs::path name = path.stem();
-      name += ".partial-" + std::to_string(k);
-      name += path.extension();
-      tmp = path.parent_path() / name;
-    }
+    const fs::path tmp = partial_name(path, k);
     // 0666: the user's umask applies, as for a file the writer would create itself.
     const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     if (fd >= 0) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -109,6 +110,34 @@ struct SequencePattern {
     return prefix + buf + suffix;
   }
 };
+
+}  // namespace
+
+bool in_image_sequence(const std::filesystem::path& file, const std::string& pattern) {
+  if (pattern.empty() || file.empty()) return false;
+  // The number the file's name would carry in the pattern's file name, then whether the
+  // pattern's file of that number is this file (through any spelling or link).
+  SequencePattern name_pattern, full;
+  try {
+    name_pattern = SequencePattern::parse(fs::path(pattern).filename().string());
+    full = SequencePattern::parse(pattern);
+  } catch (const InputError&) {
+    return false;  // not a pattern (Footage::open_sequence() says why), or a field in a folder
+  }
+  const std::string name = file.filename().string();
+  const std::string& pre = name_pattern.prefix;
+  const std::string& suf = name_pattern.suffix;
+  if (name.size() <= pre.size() + suf.size() || name.compare(0, pre.size(), pre) != 0 ||
+      name.compare(name.size() - suf.size(), suf.size(), suf) != 0)
+    return false;
+  const std::string digits = name.substr(pre.size(), name.size() - pre.size() - suf.size());
+  int index = 0;
+  const auto [end, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), index);
+  if (ec != std::errc() || end != digits.data() + digits.size()) return false;
+  return same_file(file, full.file(index));
+}
+
+namespace {
 
 /// Frames grabbed forward rather than seeking when the target is this close ahead.
 constexpr int kMaxForwardGrab = 32;

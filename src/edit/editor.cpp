@@ -2,15 +2,12 @@
 
 #include <algorithm>
 #include <array>
-#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <map>
 #include <optional>
-#include <regex>
 #include <sstream>
-#include <string_view>
 
 #include <unistd.h>
 
@@ -62,37 +59,6 @@ double longest_edge(const Mesh& mesh, Eigen::Index t) {
   return longest;
 }
 
-/// Whether `path` is a file of the image sequence `pattern` ("frames/%04d.png": a printf
-/// integer conversion in the file name): the same folder, and a name the pattern makes.
-bool in_sequence(const fs::path& path, const std::string& pattern) {
-  if (pattern.empty() || path.empty()) return false;
-  const fs::path pat(pattern);
-  const fs::path dir = path.has_parent_path() ? path.parent_path() : fs::path(".");
-  const fs::path pat_dir = pat.has_parent_path() ? pat.parent_path() : fs::path(".");
-  if (!same_file(dir, pat_dir)) return false;
-  const std::string name = pat.filename().string();
-  std::string re;
-  for (size_t i = 0; i < name.size(); ++i) {
-    if (name[i] == '%') {
-      size_t j = i + 1;
-      while (j < name.size() && std::isdigit(static_cast<unsigned char>(name[j])) != 0) ++j;
-      if (j < name.size() && (name[j] == 'd' || name[j] == 'i')) {  // as Footage accepts
-        re += "-?[0-9]+";
-        i = j;
-        continue;
-      }
-      if (j == i + 1 && j < name.size() && name[j] == '%') {
-        re += "%";
-        i = j;
-        continue;
-      }
-    }
-    if (std::string_view("\\^$.|?*+()[]{}").find(name[i]) != std::string_view::npos) re += '\\';
-    re += name[i];
-  }
-  return std::regex_match(path.filename().string(), std::regex(re));
-}
-
 /// An error about the scene key `key` (dotted name), at its line in the scene file.
 InputError scene_error(const Scene& s, const std::string& key, const std::string& message) {
   return InputError(message, s.file, s.line_of(key), "key '" + key + "'");
@@ -131,7 +97,7 @@ void check_output_path(const fs::path& out, const Scene& scene, const std::strin
   if (!scene.object.track && same_file(out, scene.object.poses))
     fail("the output would overwrite the input file " + scene.object.poses.string());
   for (const std::string& pattern : {scene.input.sequence, scene.background.remove})
-    if (in_sequence(out, pattern))
+    if (in_image_sequence(out, pattern))
       fail("the output would overwrite a file of the input sequence " + pattern);
   try {
     check_writable(out);

@@ -47,6 +47,10 @@ class Footage {
   std::unique_ptr<Impl> m_impl;
 };
 
+/// Whether `file` is a frame of the image sequence `pattern` (as Footage::open_sequence() reads
+/// it: "frames/%04d.png"), whether or not it exists yet, through any spelling or link.
+bool in_image_sequence(const std::filesystem::path& file, const std::string& pattern);
+
 /// Writes frames to a video file. Frames go to a temporary name beside the target
 /// ("name.partial.ext") which is renamed to the target by close(); a writer destroyed
 /// without close() removes the temporary file, so no partial output is left under the
