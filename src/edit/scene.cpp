@@ -59,7 +59,11 @@ class Reader {
 
   [[noreturn]] void fail(const YAML::Node& node, const std::string& key,
                          const std::string& message) const {
-    const int line = node.IsDefined() ? node.Mark().line + 1 : 0;
+    // An empty value (`background:` with nothing after it) is a null node marked where the
+    // parser found the next token, lines later: it is reported at its key's line.
+    int line = node.IsDefined() ? node.Mark().line + 1 : 0;
+    if (const auto it = m_lines->find(key); it != m_lines->end() && (line <= 0 || node.IsNull()))
+      line = it->second;
     throw InputError(message, m_file, line > 0 ? line : 0, "key '" + key + "'");
   }
 

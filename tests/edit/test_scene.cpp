@@ -176,6 +176,20 @@ TEST(SceneErrors, DuplicateKeysNameTheSecondAndTheFirstLine) {
       << e;
 }
 
+TEST(SceneErrors, AnEmptyValueIsReportedAtItsKey) {
+  // An empty value is a null node that the parser marks at the next token, here lines below.
+  std::string text = kFull;
+  const std::string plate = "background: {plate: plate.png, remove: masks/%04d.png}\n";
+  text.replace(text.find(plate), plate.size(), "background:\n\n\n# the plate\n");
+  std::string e = error_of(text);
+  EXPECT_NE(e.find(":9: key 'background': expected a mapping of keys"), std::string::npos) << e;
+  text = kFull;
+  const std::string line = "  substeps: 12\n";
+  text.replace(text.find(line), line.size(), "  substeps:\n\n");
+  e = error_of(text);
+  EXPECT_NE(e.find(":15: key 'simulation.substeps': expected a number"), std::string::npos) << e;
+}
+
 TEST(SceneErrors, ScaleIsAnEnlargementNotAUnitChange) {
   std::string text = kFull;
   text.replace(text.find("scale: 1.02"), 11, "scale: 1000");
