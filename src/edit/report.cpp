@@ -147,40 +147,123 @@ void write_report(const Report& report, const std::filesystem::path& path) {
   });
 }
 
+namespace {
+
+/// Reads typed fields of a report, throwing InputError that names the file and the field
+/// (`frames[3].violation_pct`): JSON has no lines worth quoting once parsed.
+class ReportFields {
+ public:
+  explicit ReportFields(const std::filesystem::path& path) : m_path(path) {}
+
+  [[noreturn]] void fail(const std::string& key, const std::string& message) const {
+    throw InputError("not a pbve report: " + message, m_path, 0,
+                     key.empty() ? std::string() : "key '" + key + "'");
+  }
+  static const char* kind(const json& v) {
+    if (v.is_boolean()) return "true or false";
+    if (v.is_number()) return "a number";
+    if (v.is_string()) return "a string";
+    if (v.is_array()) return "a list";
+    if (v.is_object()) return "an object";
+    return "null";
+  }
+  /// `o[name]`, or nullptr when absent (fail() when `required`).
+  const json* field(const json& o, const std::string& where, const char* name,
+                    bool required) const {
+    const auto it = o.find(name);
+    if (it != o.end()) return &*it;
+    if (required) fail(where + name, "missing");
+    return nullptr;
+  }
+  double number(const json& o, const std::string& where, const char* name, bool required,
+                double fallback) const {
+    const json* v = field(o, where, name, required);
+    if (!v) return fallback;
+    if (!v->is_number()) fail(where + name, std::string("expected a number, found ") + kind(*v));
+    return v->get<double>();
+  }
+  int integer(const json& o, const std::string& where, const char* name, bool required,
+              int fallback) const {
+    const json* v = field(o, where, name, required);
+    if (!v) return fallback;
+    const double d = v->is_number() ? v->get<double>() : 0.5;
+    if (d != std::floor(d) || std::abs(d) > 2e9)
+      fail(where + name, "expected a whole number, found " +
+                             (v->is_number() ? v->dump() : std::string(kind(*v))));
+    return static_cast<int>(d);
+  }
+  bool boolean(const json& o, const std::string& where, const char* name, bool fallback) const {
+    const json* v = field(o, where, name, false);
+    if (!v) return fallback;
+    if (!v->is_boolean())
+      fail(where + name, std::string("expected true or false, found ") + kind(*v));
+    return v->get<bool>();
+  }
+  std::string string(const json& o, const std::string& where, const char* name) const {
+    const json* v = field(o, where, name, false);
+    if (!v) return {};
+    if (!v->is_string()) fail(where + name, std::string("expected a string, found ") + kind(*v));
+    return v->get<std::string>();
+  }
+
+ private:
+  std::filesystem::path m_path;
+};
+
+}  // namespace
+
 Report read_report(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError("cannot open the report", path);
   json j;
   try {
     j = json::parse(in);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, or out_of_range for a number like 1e999
     throw InputError(std::string("not valid JSON: ") + e.what(), path);
   }
+  const ReportFields rf(path);
+  if (!j.is_object())
+    rf.fail("", std::string("expected an object, found ") + ReportFields::kind(j));
   Report r;
-  try {
-    r.complete = j.value("complete", true);
-    r.stopped_at = j.value("stopped_at", -1);
-    r.stopped_reason = j.value("stopped_reason", "");
-    r.engine = j.value("engine", "");
-    for (const json& f : j.at("frames")) {
-      FrameRecord x;
-      x.index = f.at("index").get<int>();
-      x.violation_pct = f.at("violation_pct").get<double>();
-      x.visible_area_px = f.value("visible_area_px", 0.0);
-      x.control_force = f.at("control_force").get<double>();
-      x.physical_force = f.at("physical_force").get<double>();
-      x.solve_ms = f.value("solve_ms", 0.0);
-      x.frame_ms = f.value("frame_ms", 0.0);
-      x.iterations = f.value("iterations", 0);
-      x.status = f.value("status", "");
-      x.pose_lost = f.value("pose_lost", false);
-      x.substep_factor = f.value("substep_factor", 1);
-      r.frames.push_back(x);
+  r.complete = rf.boolean(j, "", "complete", true);
+  r.stopped_at = rf.integer(j, "", "stopped_at", false, -1);
+  r.stopped_reason = rf.string(j, "", "stopped_reason");
+  r.engine = rf.string(j, "", "engine");
+  const json& frames = *rf.field(j, "", "frames", true);
+  if (!frames.is_array())
+    rf.fail("frames", std::string("expected a list, found ") + ReportFields::kind(frames));
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const json& f = frames[i];
+    const std::string where = "frames[" + std::to_string(i) + "].";
+    if (!f.is_object())
+      rf.fail(where.substr(0, where.size() - 1),
+              std::string("expected an object, found ") + ReportFields::kind(f));
+    FrameRecord x;
+    x.index = rf.integer(f, where, "index", true, 0);
+    x.violation_pct = rf.number(f, where, "violation_pct", true, 0.0);
+    x.visible_area_px = rf.number(f, where, "visible_area_px", false, 0.0);
+    x.control_force = rf.number(f, where, "control_force", true, 0.0);
+    x.physical_force = rf.number(f, where, "physical_force", true, 0.0);
+    x.solve_ms = rf.number(f, where, "solve_ms", false, 0.0);
+    x.frame_ms = rf.number(f, where, "frame_ms", false, 0.0);
+    x.iterations = rf.integer(f, where, "iterations", false, 0);
+    x.status = rf.string(f, where, "status");
+    x.pose_lost = rf.boolean(f, where, "pose_lost", false);
+    x.substep_factor = rf.integer(f, where, "substep_factor", false, 1);
+    r.frames.push_back(x);
+  }
+  if (const json* summary = rf.field(j, "", "summary", false); summary && summary->is_object()) {
+    if (const json* w = rf.field(*summary, "summary.", "warnings", false)) {
+      if (!w->is_array())
+        rf.fail("summary.warnings",
+                std::string("expected a list, found ") + ReportFields::kind(*w));
+      for (size_t i = 0; i < w->size(); ++i) {
+        if (!(*w)[i].is_string())
+          rf.fail("summary.warnings[" + std::to_string(i) + "]",
+                  std::string("expected a string, found ") + ReportFields::kind((*w)[i]));
+        r.warnings.push_back((*w)[i].get<std::string>());
+      }
     }
-    if (j.contains("summary") && j["summary"].contains("warnings"))
-      r.warnings = j["summary"]["warnings"].get<std::vector<std::string>>();
-  } catch (const json::exception& e) {
-    throw InputError(std::string("not a pbve report: ") + e.what(), path);
   }
   return r;
 }

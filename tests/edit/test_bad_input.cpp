@@ -660,7 +660,9 @@ TEST_F(BadInput, PlotOfAnInvalidReportWritesNoPlot) {
   write_text(dir / "bad.json", "{\"frames\": [{\"index\": 0}]}");
   const CmdResult r = pbve_cmd("plot " + (dir / "bad.json").string());
   EXPECT_EQ(r.status, 1) << r.output;
-  EXPECT_NE(r.output.find("bad.json: not a pbve report"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("bad.json: key 'frames[0].violation_pct': not a pbve report: missing"),
+            std::string::npos)
+      << r.output;
   EXPECT_FALSE(fs::exists(dir / "bad.png"));
   EXPECT_FALSE(fs::exists(dir / "bad.partial.png"));
 }

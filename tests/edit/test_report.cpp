@@ -1,5 +1,8 @@
 // Report: summary statistics, faithfulness warnings, JSON round trip.
 
+#include <fstream>
+#include <iterator>
+
 #include <gtest/gtest.h>
 
 #include "pbve/core/error.hpp"
@@ -72,6 +75,42 @@ TEST(Report, ReadingGarbageNamesTheFile) {
     EXPECT_EQ(e.file(), p);
     EXPECT_NE(std::string(e.what()).find("bad.json"), std::string::npos);
   }
+}
+
+TEST(Report, AMalformedFieldIsNamed) {
+  // A report edited by hand or by a script: each wrong field names the file and the field.
+  pbve::test::TempDir dir;
+  pbve::Report r;
+  r.frames = {frame(0, 1.5, 0.2, 2.0), frame(1, 0.5, 0.1, 1.0)};
+  pbve::write_report(r, dir / "r.json");
+  std::ifstream in(dir / "r.json");
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto error_of = [&](const std::string& from, const std::string& to) {
+    std::string bad = text;
+    const size_t at = bad.rfind(from);  // in the last frame
+    if (at == std::string::npos) return std::string("'" + from + "' not in the report");
+    bad.replace(at, from.size(), to);
+    const auto p = pbve::test::write_text(dir / "bad.json", bad);
+    try {
+      pbve::read_report(p);
+    } catch (const pbve::InputError& e) {
+      EXPECT_EQ(e.file(), p);
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  std::string e = error_of("\"violation_pct\": 0.5", "\"violation_pct\": \"0.5\"");
+  EXPECT_NE(e.find("key 'frames[1].violation_pct'"), std::string::npos) << e;
+  EXPECT_NE(e.find("expected a number, found a string"), std::string::npos) << e;
+  e = error_of("\"index\": 1", "\"index\": 1.5");
+  EXPECT_NE(e.find("key 'frames[1].index': not a pbve report: expected a whole number, found 1.5"),
+            std::string::npos)
+      << e;
+  e = error_of("\"control_force\": 0.1,", "");
+  EXPECT_NE(e.find("key 'frames[1].control_force': not a pbve report: missing"), std::string::npos)
+      << e;
+  e = error_of("\"physical_force\": 1.0", "\"physical_force\": 1e999");  // beyond a double
+  EXPECT_NE(e.find("bad.json: not valid JSON"), std::string::npos) << e;
 }
 
 }  // namespace
