@@ -300,6 +300,16 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   } catch (const InputError& e) {
     throw scene_error(scene, e.key(), e.message());
   }
+  const int frames = footage.frame_count();
+  const int first = options.first_frame;
+  const int end = options.end_frame < 0 ? frames : options.end_frame;
+  if (first < 0 || first >= end || end > frames)
+    throw InputError(
+        "frames " + std::to_string(first) + ":" +
+            (options.end_frame < 0 ? std::string() : std::to_string(options.end_frame)) +
+            " requested, but the footage has " + std::to_string(frames) +
+            " frames (0:" + std::to_string(frames) + ")",
+        footage.source());
 
   Mesh mesh = load_mesh(scene.object.mesh);
   const MeshReport findings = validate_mesh(mesh, scene.object.mesh);
@@ -351,11 +361,14 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
                          scene.object.initial_pose, 1);
       return *first.poses[0];
     }();
-    Footage frames = open_footage(scene);
+    // Only the frames the edit needs: 0 (the initial pose) to the end of the edited range.
+    Footage clip = open_footage(scene);
+    TrackOptions to;
+    to.end_frame = end;
     TrackResult tracked;
     try {
       tracked = track_footage(
-          frames, given, camera, initial, TrackOptions{},
+          clip, given, camera, initial, to,
           [&](int t, const cv::Mat&, const std::optional<Pose>&, const TrackFrameInfo&) {
             if (cb.cancel && cb.cancel())
               throw EditCancelled("cancelled while tracking, at frame " + std::to_string(t) +
@@ -384,9 +397,10 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   }
   const fs::path& pose_source = scene.object.track ? tracked_poses : scene.object.poses;
 
-  const int frames = footage.frame_count();
   if (!scene.input.image.empty() && track.size() == 1)
     track.poses.resize(static_cast<size_t>(frames), track.poses[0]);
+  if (scene.object.track && track.size() < frames)  // tracked up to the edited range's end
+    track.poses.resize(static_cast<size_t>(frames));
   if (track.size() < frames)
     throw InputError("the pose file has " + std::to_string(track.size()) +
                          " poses but the footage has " + std::to_string(frames) + " frames",
@@ -394,16 +408,6 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   if (track.size() > frames)
     report.warnings.push_back("the pose file has " + std::to_string(track.size()) + " poses for " +
                               std::to_string(frames) + " frames: the extra poses are ignored");
-
-  const int first = options.first_frame;
-  const int end = options.end_frame < 0 ? frames : options.end_frame;
-  if (first < 0 || first >= end || end > frames)
-    throw InputError(
-        "frames " + std::to_string(first) + ":" +
-            (options.end_frame < 0 ? std::string() : std::to_string(options.end_frame)) +
-            " requested, but the footage has " + std::to_string(frames) +
-            " frames (0:" + std::to_string(frames) + ")",
-        footage.source());
 
   // Poses of the edited range; `lost` frames hold the last known pose (and its frame's texture).
   std::vector<Pose> pose(static_cast<size_t>(end));

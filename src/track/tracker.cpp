@@ -1023,7 +1023,8 @@ TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& came
                           const Pose& initial, const TrackOptions& options,
                           const TrackFrameCallback& on_frame) {
   TrackResult out;
-  const int n = footage.frame_count();
+  const int n = options.end_frame < 0 ? footage.frame_count()
+                                      : std::min(options.end_frame, footage.frame_count());
   PoseTracker tracker(mesh, camera, options);
   double ms = 0.0;
   int out_of_view_from = -1;

@@ -221,6 +221,27 @@ TEST_F(TrackCli, SceneWithPosesTrackTracksFirstThenEdits) {
   EXPECT_TRUE(fs::exists(dir / "edited.mp4"));
 }
 
+TEST_F(TrackCli, PosesTrackTracksOnlyUpToTheEditedRange) {
+  // An edit of frames 2-5 needs poses from frame 0 (the initial pose) to 5, not the whole clip.
+  ASSERT_FALSE(tracking_scene(dir.path(), "  initial_pose: init.txt\n").empty());
+  const CmdResult r =
+      pbve_cmd("edit " + (dir / "track_scene.yaml").string() + " --no-control --frames 2:6");
+  ASSERT_EQ(r.status, 0) << r.output;
+  const pbve::PoseTrack tracked = pbve::load_pose_file(dir / "edited.poses.txt");
+  ASSERT_EQ(tracked.size(), 6);
+  EXPECT_EQ(tracked.lost_count(), 0);
+  EXPECT_EQ(pbve::Footage::open_video(dir / "edited.mp4").frame_count(), 4);
+  // A range past the clip is refused before any tracking: no poses written.
+  fs::remove(dir / "edited.poses.txt");
+  const CmdResult past =
+      pbve_cmd("edit " + (dir / "track_scene.yaml").string() + " --no-control --frames 2:13");
+  EXPECT_EQ(past.status, 1) << past.output;
+  EXPECT_NE(past.output.find("frames 2:13 requested, but the footage has 12 frames"),
+            std::string::npos)
+      << past.output;
+  EXPECT_FALSE(fs::exists(dir / "edited.poses.txt"));
+}
+
 TEST_F(TrackCli, PosesTrackWithoutAnInitialPoseNamesTheKeyAndLine) {
   const std::string text = tracking_scene(dir.path(), "");
   ASSERT_FALSE(text.empty());

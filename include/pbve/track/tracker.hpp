@@ -82,6 +82,9 @@ struct TrackOptions {
   double lost_agreement = 0.2;
   double region_only_agreement = 0.5;
   bool redetect = true;  ///< after a loss, search the whole frame for keyframe descriptors (ORB)
+  /// track_footage() tracks frames [0, end_frame) only (the frames an edit needs); -1: the
+  /// whole clip.
+  int end_frame = -1;
 };
 
 /// What happened in one frame.
@@ -135,7 +138,8 @@ struct TrackResult {
 using TrackFrameCallback =
     std::function<void(int, const cv::Mat&, const std::optional<Pose>&, const TrackFrameInfo&)>;
 
-/// Tracks `mesh` through every frame of `footage` from `initial`, the pose in frame 0.
+/// Tracks `mesh` through every frame of `footage` (up to options.end_frame) from `initial`, the
+/// pose in frame 0.
 TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& camera,
                           const Pose& initial, const TrackOptions& options = {},
                           const TrackFrameCallback& on_frame = {});
