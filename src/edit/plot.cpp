@@ -43,25 +43,39 @@ struct Panel {
   }
 };
 
+/// The round step (1, 2 or 5 times a power of ten, at least min_step) that splits `range` into
+/// at most `max_intervals` intervals.
+double round_step(double range, int max_intervals, double min_step) {
+  const double raw = std::max(range / std::max(max_intervals, 1), 1e-300);
+  const double mag = std::pow(10.0, std::floor(std::log10(raw)));
+  double step = 10.0 * mag;
+  for (const double m : {1.0, 2.0, 5.0})
+    if (m * mag >= raw * (1.0 - 1e-9)) {
+      step = m * mag;
+      break;
+    }
+  return std::max(step, min_step);
+}
+
 void axes(cv::Mat& img, const Panel& p, const std::string& title, const std::string& ylabel) {
-  const int ticks = 5;
-  for (int i = 0; i <= ticks; ++i) {
-    const double t = static_cast<double>(i) / ticks;
-    const int y = p.box.y + p.box.height - static_cast<int>(t * p.box.height);
+  const auto y_tick = [&](double t, const std::string& label) {
+    const int y = p.box.y + p.box.height - static_cast<int>(std::lround(t * p.box.height));
     cv::line(img, {p.box.x, y}, {p.box.x + p.box.width, y}, kGrid, 1);
-    const double v = p.log_y ? std::pow(10.0, p.y0 + t * (p.y1 - p.y0)) : p.y0 + t * (p.y1 - p.y0);
-    cv::putText(img, fmt(v), {p.box.x - 70, y + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1,
+    cv::putText(img, label, {p.box.x - 70, y + 5}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1,
                 cv::LINE_AA);
+  };
+  if (p.log_y) {
+    // Whole decades, every one up to 6 of them.
+    const double every = std::ceil((p.y1 - p.y0) / 6.0);
+    for (double d = p.y0; d <= p.y1 + 1e-9; d += every)
+      y_tick((d - p.y0) / (p.y1 - p.y0), fmt(std::pow(10.0, d)));
+  } else {
+    for (const double v : axis_ticks(p.y0, p.y1, 6)) y_tick((v - p.y0) / (p.y1 - p.y0), fmt(v));
   }
-  // Frame numbers at whole frames: at most `ticks` intervals, fewer for a short report (two
-  // frames got 0 0 0 1 1 1).
-  const double span = p.x1 - p.x0;
-  const int xticks = std::clamp(static_cast<int>(std::lround(span)), 1, ticks);
-  for (int i = 0; i <= xticks; ++i) {
-    const double frame = std::round(p.x0 + span * i / xticks);
+  // Frame numbers at whole frames (a short report got 0 0 0 1 1 1 once).
+  for (const double frame : axis_ticks(p.x0, p.x1, 6, 1.0))
     cv::putText(img, fmt(frame), {p.map(frame, 0.0).x - 10, p.box.y + p.box.height + 20},
                 cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1, cv::LINE_AA);
-  }
   cv::rectangle(img, p.box, kInk, 1);
   cv::putText(img, title, {p.box.x, p.box.y - 12}, cv::FONT_HERSHEY_SIMPLEX, 0.6, kInk, 1,
               cv::LINE_AA);
@@ -82,6 +96,16 @@ void polyline(cv::Mat& img, const Panel& p, const std::vector<FrameRecord>& fram
 
 }  // namespace
 
+std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step) {
+  std::vector<double> ticks;
+  if (!(hi >= lo) || !std::isfinite(lo) || !std::isfinite(hi)) return ticks;
+  const double step = round_step(hi - lo, max_intervals, min_step);
+  const double eps = 1e-9 * step;
+  for (double k = std::ceil(lo / step - 1e-9); k * step <= hi + eps; k += 1.0)
+    ticks.push_back(k * step == 0.0 ? 0.0 : k * step);  // no -0
+  return ticks;
+}
+
 cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::string>& labels,
                      int width, int height) {
   cv::Mat img(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
@@ -101,7 +125,10 @@ cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::
   if (fmax <= 0) fmin = 1e-3, fmax = 1.0;
   const int left = 90, right = 30, top = 50, gap = 80, bottom = 70;
   const int ph = (height - top - gap - bottom) / 2;
-  Panel viol{{left, top, width - left - right, ph}, x0, x1, 0.0, std::max(1.0, vmax * 1.1), false};
+  // The violation axis ends at the first round tick at or above the highest value.
+  const double vtop = std::max(1.0, vmax), vstep = round_step(vtop, 6, 0.0);
+  Panel viol{{left, top, width - left - right, ph}, x0,   x1, 0.0,
+             vstep * std::ceil(vtop / vstep),       false};
   Panel force{{left, top + ph + gap, width - left - right, ph},
               x0,
               x1,

@@ -140,4 +140,17 @@ TEST(Plot, DrawsEachRunInItsColour) {
   EXPECT_GT(second, 100);
 }
 
+TEST(Plot, AxisTicksAreRoundNumbersWithinTheRange) {
+  using V = std::vector<double>;
+  EXPECT_EQ(pbve::axis_ticks(0, 89, 6, 1.0), (V{0, 20, 40, 60, 80}));
+  EXPECT_EQ(pbve::axis_ticks(0, 100, 6), (V{0, 20, 40, 60, 80, 100}));
+  EXPECT_EQ(pbve::axis_ticks(0, 1, 6, 1.0), (V{0, 1}));  // a two-frame report: whole frames
+  EXPECT_EQ(pbve::axis_ticks(14, 50, 6, 1.0), (V{20, 30, 40, 50}));
+  EXPECT_EQ(pbve::axis_ticks(-3, 3, 6), (V{-3, -2, -1, 0, 1, 2, 3}));
+  const V small = pbve::axis_ticks(0, 0.3, 6);
+  ASSERT_EQ(small.size(), 7u);
+  EXPECT_NEAR(small[6], 0.3, 1e-12);
+  EXPECT_TRUE(pbve::axis_ticks(1, 0, 6).empty());
+}
+
 }  // namespace

@@ -18,4 +18,9 @@ namespace pbve {
 cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::string>& labels,
                      int width = 1200, int height = 800);
 
+/// Tick values of a linear axis over [lo, hi]: the multiples of a round step (1, 2 or 5 times a
+/// power of ten, at least `min_step`) that lie in it, at most `max_intervals` steps apart
+/// end to end. Empty when hi < lo.
+std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step = 0.0);
+
 }  // namespace pbve
