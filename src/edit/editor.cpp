@@ -469,6 +469,11 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   } catch (const InputError& e) {
     rethrow_engine_error(e, scene);
   }
+  if (!sim)
+    throw scene_error(scene, "simulation.engine",
+                      "the simulator factory (EditCallbacks::make_simulator) made no simulator "
+                      "for engine '" +
+                          scene.simulation.engine + "'");
   report.engine = sim->name();
   check_simulator(*sim);
   if (sim->num_vertices() != mesh.num_vertices())

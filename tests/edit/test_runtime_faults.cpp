@@ -13,6 +13,7 @@
 #include <opencv2/videoio.hpp>
 
 #include "edit/fault_simulator.hpp"
+#include "pbve/core/error.hpp"
 #include "pbve/edit/editor.hpp"
 #include "pbve/edit/report.hpp"
 #include "pbve/edit/scene.hpp"
@@ -71,6 +72,23 @@ class RuntimeFaults : public ::testing::Test {
 
   pbve::test::TempDir dir;
 };
+
+TEST_F(RuntimeFaults, AFactoryThatMakesNoSimulatorIsAnErrorAtTheEngineKey) {
+  const pbve::Scene scene = pbve::load_scene(dir / "scene.yaml");
+  pbve::EditCallbacks cb;
+  cb.make_simulator = [](const pbve::EngineRecipe&) { return std::unique_ptr<pbve::Simulator>(); };
+  try {
+    pbve::run_edit(scene, pbve::EditOptions{}, cb);
+    ADD_FAILURE() << "no error";
+  } catch (const pbve::InputError& e) {
+    EXPECT_EQ(e.file(), scene.file);
+    EXPECT_EQ(e.line(), scene.line_of("simulation.engine"));
+    EXPECT_NE(std::string(e.what()).find("made no simulator for engine 'mass_spring'"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dir / scene.output.video.filename()));
+}
 
 TEST_F(RuntimeFaults, DivergenceIsRetriedWithTwiceTheSubsteps) {
   FaultPlan plan;

@@ -47,7 +47,8 @@ struct EditCallbacks {
   /// frames too (`poses: track`): true there throws EditCancelled, nothing written.
   std::function<bool()> cancel;
   /// Creates the simulator (required): pbve::make_engine() from pbve/engines.hpp for the
-  /// built-in engines, or a factory of one's own adapter.
+  /// built-in engines, or a factory of one's own adapter. It throws InputError for an engine
+  /// or settings it does not take; a null pointer is an InputError at `simulation.engine`.
   std::function<std::unique_ptr<Simulator>(const EngineRecipe&)> make_simulator;
 };
 
