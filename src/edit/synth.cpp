@@ -184,6 +184,9 @@ SurfaceTexture procedural_texture(double period) {
 }
 
 cv::Mat make_background(cv::Size size, unsigned seed) {
+  if (size.width < 1 || size.height < 1)
+    throw InputError("make_background: the size must be positive, got " +
+                     std::to_string(size.width) + "x" + std::to_string(size.height));
   cv::Mat img(size, CV_8UC3);
   for (int y = 0; y < size.height; ++y)
     for (int x = 0; x < size.width; ++x) {
@@ -214,6 +217,16 @@ cv::Mat make_background(cv::Size size, unsigned seed) {
 
 cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
                       const SurfaceTexture& texture, const cv::Mat& background, int supersample) {
+  if (background.type() != CV_8UC3 || background.cols != camera.width ||
+      background.rows != camera.height)
+    throw InputError("render_object: the background must be 8-bit BGR of the camera's size " +
+                     std::to_string(camera.width) + "x" + std::to_string(camera.height) + ", got " +
+                     std::to_string(background.cols) + "x" + std::to_string(background.rows) +
+                     " with " + std::to_string(background.channels()) + " channels");
+  if (supersample < 1)
+    throw InputError("render_object: supersample must be at least 1, got " +
+                     std::to_string(supersample));
+  if (!texture) throw InputError("render_object: no texture");
   const Vertices posed = pose.apply(mesh.vertices);
   RayScene scene(posed, mesh.triangles);
   const PrimaryHits hits = scene.cast_primary(camera, supersample);

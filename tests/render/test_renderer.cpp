@@ -354,6 +354,23 @@ TEST(Renderer, RejectsMismatchedInput) {
   EXPECT_NO_THROW(renderer.render(frame, v, v, observed, frame));
 }
 
+TEST(Renderer, SyntheticFootageRejectsMismatchedInput) {
+  const Camera camera = test_camera();
+  const Mesh sphere = test::icosphere(2, 0.25);
+  const Pose pose = Pose::from_rodrigues(Eigen::Vector3d::Zero(), {0, 0, 1.5});
+  const SurfaceTexture texture = procedural_texture(0.1);
+  const cv::Mat background = make_background({camera.width, camera.height});
+  EXPECT_THROW(make_background({0, 0}), InputError);
+  EXPECT_THROW(render_object(sphere, pose, camera, texture, cv::Mat(), 1), InputError);
+  EXPECT_THROW(render_object(sphere, pose, camera, texture, background(cv::Rect(0, 0, 8, 8)), 1),
+               InputError);
+  EXPECT_THROW(render_object(sphere, pose, camera, texture, background, 0), InputError);
+  EXPECT_THROW(render_object(sphere, pose, camera, SurfaceTexture(), background, 1), InputError);
+  const cv::Mat image = render_object(sphere, pose, camera, texture, background, 1);
+  EXPECT_EQ(image.size(), background.size());
+  EXPECT_GT(cv::norm(image, background, cv::NORM_L1), 0.0);  // the sphere is drawn
+}
+
 // A mesh reaching behind the camera plane: projections are unbounded, so the removal mask falls
 // back to casting the enlarged mesh, and the renderer neither fails nor samples garbage.
 TEST(Renderer, MeshReachingBehindTheCamera) {

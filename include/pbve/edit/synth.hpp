@@ -36,10 +36,13 @@ using SurfaceTexture =
 SurfaceTexture procedural_texture(double period);
 
 /// A textured background (gradients, shapes and text-like marks), deterministic in `seed`.
+/// Throws InputError for an empty size.
 cv::Mat make_background(cv::Size size, unsigned seed = 1);
 
-/// Renders `mesh` (mesh coordinates) at `pose` over `background`, with Lambert shading from a
-/// light at the camera, `supersample` x `supersample` samples per pixel. 8-bit BGR.
+/// Renders `mesh` (mesh coordinates) at `pose` over `background` (8-bit BGR, the camera's
+/// size), with Lambert shading from a light at the camera, `supersample` x `supersample` samples
+/// per pixel. 8-bit BGR. Throws InputError for another background, supersample < 1
+/// or no texture.
 cv::Mat render_object(const Mesh& mesh, const Pose& pose, const Camera& camera,
                       const SurfaceTexture& texture, const cv::Mat& background,
                       int supersample = 3);
