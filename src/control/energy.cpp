@@ -63,6 +63,7 @@ double facing_value(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Ei
 }
 
 Eigen::VectorXd visibility_weights(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "visibility_weights");
   Eigen::VectorXd w(triangles.rows());
   double total = 0.0;
   for (Eigen::Index j = 0; j < triangles.rows(); ++j) {

@@ -149,7 +149,20 @@ MeshReport validate_mesh(const Mesh& mesh, const std::filesystem::path& source) 
   return report;
 }
 
+void check_triangle_indices(const Triangles& triangles, Eigen::Index num_vertices,
+                            const char* who) {
+  if (triangles.size() == 0 || (triangles.minCoeff() >= 0 && triangles.maxCoeff() < num_vertices))
+    return;
+  for (Eigen::Index f = 0; f < triangles.rows(); ++f)
+    for (int k = 0; k < 3; ++k)
+      if (triangles(f, k) < 0 || triangles(f, k) >= num_vertices)
+        throw std::invalid_argument(std::string(who) + ": triangle " + std::to_string(f) +
+                                    " has vertex index " + std::to_string(triangles(f, k)) +
+                                    " outside [0, " + std::to_string(num_vertices) + ")");
+}
+
 Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "triangle_normals");
   Vertices n(triangles.rows(), 3);
   for (Eigen::Index f = 0; f < triangles.rows(); ++f) {
     const Eigen::Vector3d a = row(vertices, triangles(f, 0));
@@ -161,6 +174,7 @@ Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles) 
 }
 
 Eigen::VectorXd triangle_areas(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "triangle_areas");
   Eigen::VectorXd areas(triangles.rows());
   for (Eigen::Index f = 0; f < triangles.rows(); ++f) {
     const Eigen::Vector3d a = row(vertices, triangles(f, 0));
@@ -172,6 +186,7 @@ Eigen::VectorXd triangle_areas(const Vertices& vertices, const Triangles& triang
 }
 
 Vertices triangle_centroids(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "triangle_centroids");
   Vertices c(triangles.rows(), 3);
   for (Eigen::Index f = 0; f < triangles.rows(); ++f)
     c.row(f) = (vertices.row(triangles(f, 0)) + vertices.row(triangles(f, 1)) +
@@ -352,6 +367,7 @@ Mesh refine_mesh(const Mesh& mesh, double max_edge_length, int max_vertices) {
 }
 
 double enclosed_volume(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "enclosed_volume");
   double v = 0.0;
   for (Eigen::Index f = 0; f < triangles.rows(); ++f)
     v += row(vertices, triangles(f, 0))
@@ -421,6 +437,7 @@ std::vector<std::pair<int, int>> opposite_layer_pairs(const Vertices& x, const T
                                                       double reach) {
   if (!(reach > 0.0) || !std::isfinite(reach))
     throw std::invalid_argument("opposite_layer_pairs: reach must be positive and finite");
+  check_triangle_indices(t, x.rows(), "opposite_layer_pairs");
   std::vector<std::pair<int, int>> ties = facing_pairs(x, vertex_normals(x, t), reach, false);
   std::sort(ties.begin(), ties.end());
   ties.erase(std::unique(ties.begin(), ties.end()), ties.end());

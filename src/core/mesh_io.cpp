@@ -908,6 +908,11 @@ void append_int(std::string& out, long long v) {
 void check_writable(const Mesh& mesh, const fs::path& path) {
   const std::size_t nf = static_cast<std::size_t>(mesh.num_triangles());
   if (mesh.num_vertices() == 0 || nf == 0) throw InputError("cannot write an empty mesh", path);
+  try {
+    check_triangle_indices(mesh.triangles, mesh.num_vertices(), "cannot write the mesh");
+  } catch (const std::invalid_argument& e) {
+    throw InputError(e.what(), path);
+  }
   if (!mesh.triangle_part.empty() && mesh.triangle_part.size() != nf)
     throw InputError("triangle_part has " + std::to_string(mesh.triangle_part.size()) +
                          " entries for " + std::to_string(nf) + " triangles",

@@ -201,6 +201,7 @@ Eigen::MatrixX3d triangle_sample_pattern(int samples_per_triangle) {
 }
 
 Eigen::VectorXd facing_values(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "facing_values");
   Eigen::VectorXd s(triangles.rows());
   for (Eigen::Index j = 0; j < triangles.rows(); ++j)
     s[j] = triangle_geometry(vertices, triangles, j, nullptr).facing;

@@ -7,15 +7,18 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <set>
 #include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
 
+#include "pbve/control/energy.hpp"
 #include "pbve/core/error.hpp"
 #include "pbve/core/thin_sheet.hpp"
 #include "pbve/edit/synth.hpp"
+#include "pbve/visibility/visibility.hpp"
 #include "support/test_util.hpp"
 
 namespace pbve {
@@ -718,6 +721,43 @@ TEST(MeshGeometry, TetrahedronAdjacency) {
   EXPECT_EQ(adj[3], (std::vector<int>{0, 1, 2}));
   // An isolated extra vertex has no neighbours.
   EXPECT_TRUE(vertex_adjacency(tet.triangles, 5)[4].empty());
+}
+
+TEST(MeshGeometry, OutOfRangeTriangleIndicesAreRefusedBeforeAnyRead) {
+  const Mesh tet = make_tetrahedron();
+  for (const int bad : {4, -1}) {
+    Triangles t = tet.triangles;
+    t(2, 1) = bad;
+    const auto names = [&](const std::function<void()>& call, const std::string& who) {
+      try {
+        call();
+        ADD_FAILURE() << who << ": no error for index " << bad;
+      } catch (const std::invalid_argument& e) {
+        const std::string m = e.what();
+        EXPECT_NE(m.find(who + ": triangle 2 has vertex index " + std::to_string(bad) +
+                         " outside [0, 4)"),
+                  std::string::npos)
+            << m;
+      }
+    };
+    const Vertices& v = tet.vertices;
+    names([&] { triangle_normals(v, t); }, "triangle_normals");
+    names([&] { triangle_areas(v, t); }, "triangle_areas");
+    names([&] { triangle_centroids(v, t); }, "triangle_centroids");
+    names([&] { enclosed_volume(v, t); }, "enclosed_volume");
+    names([&] { opposite_layer_pairs(v, t, 1.0); }, "opposite_layer_pairs");
+    names([&] { make_thin_sheet(v, t, 1.0); }, "opposite_layer_pairs");
+    names([&] { facing_values(v, t); }, "facing_values");
+    names([&] { visibility_weights(v, t); }, "visibility_weights");
+    Mesh m = tet;
+    m.triangles = t;
+    pbve::test::TempDir dir;
+    EXPECT_THROW(save_obj(m, dir / "m.obj"), InputError);
+    EXPECT_THROW(save_ply(m, dir / "m.ply"), InputError);
+    EXPECT_FALSE(std::filesystem::exists(dir / "m.obj"));
+  }
+  EXPECT_NO_THROW(check_triangle_indices(tet.triangles, 4, "tet"));
+  EXPECT_NO_THROW(check_triangle_indices(Triangles(0, 3), 0, "empty"));
 }
 
 TEST(MeshGeometry, ScaleAboutCentroidScalesDistancesAndKeepsCentroid) {

@@ -84,6 +84,11 @@ void scale_about_centroid(Mesh& mesh, double factor);
 /// vertices than that (before allocating them).
 Mesh refine_mesh(const Mesh& mesh, double max_edge_length, int max_vertices = 0);
 
+/// Throws std::invalid_argument, naming `who` and the first such triangle, when a triangle has
+/// a vertex index outside [0, num_vertices). The functions below that take vertices and
+/// triangles check it (a min/max pass over the indices) before reading any vertex.
+void check_triangle_indices(const Triangles& triangles, Eigen::Index num_vertices, const char* who);
+
 /// Per-triangle unnormalized normals (b - a) x (c - a), #F by 3.
 Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles);
 /// Per-triangle areas, #F.
