@@ -6,6 +6,8 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "pbve/core/error.hpp"
+
 namespace pbve {
 
 namespace {
@@ -108,6 +110,10 @@ std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double m
 
 cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::string>& labels,
                      int width, int height) {
+  // The margins, titles and two panels need this much room.
+  if (width < 400 || height < 300 || width > 16384 || height > 16384)
+    throw InputError("plot_reports: the figure must be 400x300 to 16384x16384 pixels, got " +
+                     std::to_string(width) + "x" + std::to_string(height));
   cv::Mat img(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
   double x0 = 1e300, x1 = -1e300, vmax = 0.0, fmin = 1e300, fmax = 0.0;
   for (const Report& r : reports)

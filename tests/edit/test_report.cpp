@@ -140,6 +140,14 @@ TEST(Plot, DrawsEachRunInItsColour) {
   EXPECT_GT(second, 100);
 }
 
+TEST(Plot, ASizeWithoutRoomForThePanelsIsRefused) {
+  pbve::Report a;
+  a.frames.push_back(frame(0, 1.0, 0.1, 1.0));
+  EXPECT_THROW(pbve::plot_reports({a}, {}, -10, -10), pbve::InputError);
+  EXPECT_THROW(pbve::plot_reports({a}, {}, 399, 600), pbve::InputError);
+  EXPECT_EQ(pbve::plot_reports({a}, {}, 400, 300).size(), cv::Size(400, 300));
+}
+
 TEST(Plot, AxisTicksAreRoundNumbersWithinTheRange) {
   using V = std::vector<double>;
   EXPECT_EQ(pbve::axis_ticks(0, 89, 6, 1.0), (V{0, 20, 40, 60, 80}));

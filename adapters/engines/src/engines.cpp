@@ -123,7 +123,9 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
   } catch (const InputError&) {
     throw;
   } catch (const std::invalid_argument& e) {
-    throw InputError(std::string("mass_spring: ") + e.what(), r.scene_file);
+    const std::string what = e.what();  // the adapter's messages mostly name it already
+    throw InputError(what.rfind("mass_spring: ", 0) == 0 ? what : "mass_spring: " + what,
+                     r.scene_file);
   }
 }
 #endif

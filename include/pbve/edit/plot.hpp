@@ -15,6 +15,7 @@ namespace pbve {
 /// Draws one figure (8-bit BGR, `width` x `height`) with two panels: top, violation_pct per
 /// frame for each report; bottom, control force and physical force per frame for each report
 /// (log scale). `labels` name the reports in the legend (defaults: "run 1", "run 2", ...).
+/// Throws InputError for a size outside 400x300 .. 16384x16384.
 cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::string>& labels,
                      int width = 1200, int height = 800);
 

@@ -1,7 +1,7 @@
 #pragma once
 /// @file
 /// The per-run report (JSON): per-frame metrics, a summary with faithfulness warnings, and the
-/// resolved settings. See DESIGN.md ("Report").
+/// resolved settings. The format is in docs/formats.md ("Report (JSON)").
 
 #include <filesystem>
 #include <optional>

@@ -1,6 +1,6 @@
 #pragma once
 /// @file
-/// The scene file (YAML): what to edit and how. See DESIGN.md ("Scene file") for the contract.
+/// The scene file (YAML): what to edit and how. The format is in docs/formats.md.
 ///
 /// Relative paths are resolved against the scene file's folder. Unknown keys are an error
 /// that names the key, its line, and the nearest valid key.

@@ -56,7 +56,9 @@ struct StepInput {
   Eigen::VectorXd control;  ///< size ControlLayout::size(), or empty for zero control
   /// Positions of the anchors (#anchors by 3, order of Simulator::anchors()) at the end of
   /// the step, camera frame; linearly interpolated from their current positions across
-  /// substeps. Empty: anchors stay where they are.
+  /// substeps. Empty: anchors stay where they are. Build it from the simulator's anchors(),
+  /// which may differ from the ids an adapter was given (mass_spring's single sheet anchors
+  /// the sheet nodes that carry them).
   Vertices anchor_targets;
 };
 

@@ -228,7 +228,10 @@ class MassSpringSimulator final : public Simulator {
   /// @param mesh       topology (triangles); its vertices are not used
   /// @param positions  #V by 3 rest positions, camera frame, metres; the simulation starts here
   ///                   at zero velocity (rest lengths and masses are measured on them)
-  /// @param anchors    anchored surface vertex ids (any order, no duplicates)
+  /// @param anchors    anchored surface vertex ids (any order, no duplicates); a thin closed
+  ///                   cloth simulated as one sheet anchors the nodes that carry them, so
+  ///                   anchors() may list other (and fewer) vertices: build
+  ///                   StepInput::anchor_targets from anchors(), not from this list
   /// @param params     physics and numerics (validated)
   /// Throws std::invalid_argument on wrong sizes, out-of-range or duplicate anchors, invalid
   /// parameters, or a solid material on a mesh that encloses no volume.
