@@ -28,6 +28,7 @@ class Footage {
   /// A single image repeated `frames` times (the paper's single-picture mode).
   static Footage open_image(const std::filesystem::path& path, int frames, double fps = 30.0);
 
+  /// A moved-from Footage may only be assigned to or destroyed.
   Footage(Footage&&) noexcept;
   Footage& operator=(Footage&&) noexcept;
   ~Footage();

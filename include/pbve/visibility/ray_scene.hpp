@@ -71,6 +71,7 @@ class RayScene {
   /// Builds the scene. Throws InputError for indices out of range or non-finite positions.
   RayScene(const Vertices& vertices, const Triangles& triangles);
   ~RayScene();
+  /// A moved-from RayScene may only be assigned to or destroyed.
   RayScene(RayScene&&) noexcept;
   RayScene& operator=(RayScene&&) noexcept;
   RayScene(const RayScene&) = delete;
