@@ -384,7 +384,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     save_pose_file(tracked.track, tracked_poses);
     track = tracked.track;
     ReportTracking& rt = report.tracking.emplace();
-    rt.poses = tracked_poses;
+    rt.poses = fs::absolute(tracked_poses);
     rt.ms_per_frame = tracked.track_ms_per_frame;
     rt.left_view_at = tracked.left_view_at;
     for (int t = 0; t < tracked.track.size(); ++t)
@@ -399,12 +399,15 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
 
   if (!scene.input.image.empty() && track.size() == 1)
     track.poses.resize(static_cast<size_t>(frames), track.poses[0]);
-  if (scene.object.track && track.size() < frames)  // tracked up to the edited range's end
-    track.poses.resize(static_cast<size_t>(frames));
-  if (track.size() < frames)
-    throw InputError("the pose file has " + std::to_string(track.size()) +
-                         " poses but the footage has " + std::to_string(frames) + " frames",
-                     pose_source);
+  // Poses are needed up to the end of the edited range (a tracked file, or one cut to the
+  // range, stops there); later frames count as lost for the background plate.
+  if (track.size() < end)
+    throw InputError(
+        "the pose file has " + std::to_string(track.size()) + " poses but the footage has " +
+            std::to_string(frames) + " frames" +
+            (end < frames ? " (the edited frames need " + std::to_string(end) + ")" : ""),
+        pose_source);
+  if (track.size() < frames) track.poses.resize(static_cast<size_t>(frames));
   if (track.size() > frames)
     report.warnings.push_back("the pose file has " + std::to_string(track.size()) + " poses for " +
                               std::to_string(frames) + " frames: the extra poses are ignored");
@@ -481,6 +484,10 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
                            " surface vertices, the mesh " + std::to_string(mesh.num_vertices()));
 
   const bool control = options.control.value_or(scene.control.enabled);
+  if (control && scene.control.gradient == "adjoint" && !sim->has_derivatives())
+    throw scene_error(scene, "control.gradient",
+                      "adjoint gradients need an engine with derivatives; " + sim->name() +
+                          " has none (use auto, compressed or central)");
   ControlOptimizer optimizer(mesh.triangles, mesh.interior, control_options(scene.control));
   const double dt = 1.0 / footage.fps();
 
@@ -547,7 +554,13 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     plate = estimate_plate(footage, plate_track, mesh, camera, po).image;
   }
 
-  report.settings_yaml = scene_to_yaml(scene);
+  // The settings of the run as done: the command line's outputs and control, the tracked poses.
+  Scene done = scene;
+  done.output.video = fs::absolute(result.video);
+  done.output.report = fs::absolute(result.report_path);
+  done.control.enabled = control;
+  if (scene.object.track) done.object.tracked_poses = fs::absolute(tracked_poses);
+  report.settings_yaml = scene_to_yaml(done);
   VideoWriter writer(result.video, footage.fps(), footage.size());
   RayScene sim_scene(sim->positions(), mesh.triangles);
   MetricOptions metric_options;

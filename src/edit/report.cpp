@@ -1,6 +1,7 @@
 #include "pbve/edit/report.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <fstream>
 #include <sstream>
@@ -34,6 +35,9 @@ json yaml_to_json(const YAML::Node& n) {
       if (s == "true") return true;
       if (s == "false") return false;
       char* end = nullptr;
+      errno = 0;
+      const long long i = std::strtoll(s.c_str(), &end, 10);  // integers stay integers
+      if (!s.empty() && end == s.c_str() + s.size() && errno != ERANGE) return i;
       const double d = std::strtod(s.c_str(), &end);
       if (!s.empty() && end == s.c_str() + s.size()) return d;
       return s;

@@ -260,6 +260,10 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       if (s.input.frames < 1) r.fail(n["frames"], "input.frames", "must be at least 1");
     }
     if (n["fps"]) {
+      // A video's frame rate is its own (it was ignored without a word).
+      if (n["video"])
+        r.fail(n["fps"], "input.fps",
+               "only used with input.image or input.sequence (a video has its own)");
       s.input.fps = r.positive(n["fps"], "input.fps");
       // (the video writer's codecs go to 1e6; 1e308 made it fail with codec noise)
       if (s.input.fps > 1e6)

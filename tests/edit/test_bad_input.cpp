@@ -179,7 +179,8 @@ TEST_F(BadInput, RegionsOfACloth) {
   replace(
       scene, "  substeps: 3",
       "  substeps: 3\n  regions: [{box: {min: [0, 0, 0], max: [1, 1, 1]}, volume_stiffness: 30}]");
-  expect_error(edit(), {"regions applies to solids (elastic, stiff), not to cloth"});
+  expect_error(edit(), {location("regions:") + "key 'simulation.regions': regions apply to solids "
+                                               "(material elastic or stiff), not to cloth"});
 }
 
 TEST_F(BadInput, WrongTypeNamesTheKey) {
@@ -330,6 +331,52 @@ TEST_F(BadInput, MorePosesThanFramesWarnsAndRuns) {
   const std::string poses = read_text(dir / "poses.txt");
   write_text(dir / "poses.txt", poses + poses.substr(0, poses.find('\n') + 1));
   expect_warning({"the pose file has 4 poses for 3 frames: the extra poses are ignored"});
+}
+
+TEST_F(BadInput, APoseFileNeedsPosesOnlyUpToTheEditedRange) {
+  // Two poses for a 3-frame clip: enough for --frames 0:2 (the third frame counts as lost for
+  // the plate), not for the whole clip or for 1:3.
+  const std::string poses = read_text(dir / "poses.txt");
+  write_text(dir / "poses.txt", poses.substr(0, poses.find('\n', poses.find('\n') + 1) + 1));
+  const CmdResult ok = edit("--frames 0:2");
+  ASSERT_EQ(ok.status, 0) << ok.output;
+  EXPECT_EQ(pbve::read_report(dir / "report.json").frames.size(), 2u);
+  fs::remove(dir / "edited.mp4");
+  fs::remove(dir / "report.json");
+  expect_error(edit("--frames 1:3"),
+               {"poses.txt: the pose file has 2 poses but the footage has 3 frames"});
+}
+
+TEST_F(BadInput, AFrameRateWithAVideoIsRefused) {
+  replace(scene, "input: {video: clip.mp4}", "input: {video: clip.mp4, fps: 60}");
+  expect_error(edit(), {location("input:") + "key 'input.fps': only used with input.image or "
+                                             "input.sequence (a video has its own)"});
+}
+
+TEST_F(BadInput, AdjointGradientsWithAnEngineWithoutDerivatives) {
+  if (read_text(dir / "scene.yaml").find("gradient: auto") == std::string::npos)
+    GTEST_SKIP() << "the synthetic scene has no gradient key";
+  replace(scene, "engine: mass_spring", "engine: bullet");
+  replace(scene, "gradient: auto", "gradient: adjoint");
+  const CmdResult r = pbve_cmd("edit " + scene.string() + " --quiet");
+  if (r.output.find("not built") != std::string::npos ||
+      r.output.find("is not one of") != std::string::npos)
+    GTEST_SKIP() << "no Bullet in this build: " << r.output;
+  expect_error(r, {location("gradient:") + "key 'control.gradient': adjoint gradients need an "
+                                           "engine with derivatives; bullet has none"});
+}
+
+TEST_F(BadInput, TheReportsSettingsAreTheRunsNotTheScenes) {
+  const CmdResult r = pbve_cmd("edit " + scene.string() + " --quiet --no-control -o " +
+                               (dir / "other.mp4").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  const std::string report = read_text(dir / "report.json");
+  EXPECT_NE(report.find("\"enabled\": false"), std::string::npos) << report;
+  EXPECT_NE(report.find("\"video\": \"" + fs::absolute(dir / "other.mp4").string() + "\""),
+            std::string::npos)
+      << report;
+  EXPECT_NE(report.find("\"substeps\": 3"), std::string::npos) << report;
+  EXPECT_EQ(report.find("\"substeps\": 3.0"), std::string::npos) << report;  // an integer
 }
 
 TEST_F(BadInput, NanInAPoseNamesTheLine) {

@@ -117,6 +117,9 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
     }
     p.regions.push_back(region);
   }
+  if (!s.regions.empty() && p.material == ms::Material::cloth)
+    fail_key(r, "regions", s.regions.front().line,
+             "regions apply to solids (material elastic or stiff), not to cloth");
   try {
     p.validate();
     return std::make_unique<ms::MassSpringSimulator>(r.mesh, r.rest_positions, r.anchors, p);
