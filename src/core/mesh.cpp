@@ -28,6 +28,21 @@ std::uint64_t edge_key(int a, int b) {
   const auto hi = static_cast<std::uint32_t>(std::max(a, b));
   return (static_cast<std::uint64_t>(lo) << 32) | hi;
 }
+/// The keys of every proper edge of every triangle (a triangle with a repeated vertex has
+/// none), sorted: an edge appears once per triangle using it.
+std::vector<std::uint64_t> sorted_edge_keys(const Triangles& triangles) {
+  std::vector<std::uint64_t> keys;
+  keys.reserve(static_cast<std::size_t>(triangles.rows()) * 3);
+  for (Eigen::Index f = 0; f < triangles.rows(); ++f) {
+    const int a = triangles(f, 0), b = triangles(f, 1), c = triangles(f, 2);
+    if (a == b || b == c || a == c) continue;
+    keys.push_back(edge_key(a, b));
+    keys.push_back(edge_key(b, c));
+    keys.push_back(edge_key(c, a));
+  }
+  std::sort(keys.begin(), keys.end());
+  return keys;
+}
 int key_first(std::uint64_t k) {
   return static_cast<int>(k >> 32);
 }
@@ -123,16 +138,7 @@ MeshReport validate_mesh(const Mesh& mesh, const std::filesystem::path& source) 
     }
   }
   // Edge use counts by sorting all edge keys.
-  std::vector<std::uint64_t> keys;
-  keys.reserve(nfs * 3);
-  for (int f = 0; f < nf; ++f) {
-    const int a = mesh.triangles(f, 0), b = mesh.triangles(f, 1), c = mesh.triangles(f, 2);
-    if (a == b || b == c || a == c) continue;  // counted as degenerate, has no proper edges
-    keys.push_back(edge_key(a, b));
-    keys.push_back(edge_key(b, c));
-    keys.push_back(edge_key(c, a));
-  }
-  std::sort(keys.begin(), keys.end());
+  const std::vector<std::uint64_t> keys = sorted_edge_keys(mesh.triangles);
   std::vector<std::uint64_t> non_manifold;
   for (std::size_t i = 0; i < keys.size();) {
     std::size_t j = i + 1;
@@ -159,6 +165,17 @@ void check_triangle_indices(const Triangles& triangles, Eigen::Index num_vertice
         throw std::invalid_argument(std::string(who) + ": triangle " + std::to_string(f) +
                                     " has vertex index " + std::to_string(triangles(f, k)) +
                                     " outside [0, " + std::to_string(num_vertices) + ")");
+}
+
+std::optional<std::pair<int, int>> first_boundary_edge(const Triangles& triangles) {
+  const std::vector<std::uint64_t> keys = sorted_edge_keys(triangles);
+  for (std::size_t i = 0; i < keys.size();) {
+    std::size_t j = i + 1;
+    while (j < keys.size() && keys[j] == keys[i]) ++j;
+    if (j - i == 1) return std::make_pair(key_first(keys[i]), key_second(keys[i]));
+    i = j;
+  }
+  return std::nullopt;
 }
 
 Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles) {

@@ -44,6 +44,9 @@ std::string nearest_key(const std::string& key, const std::vector<std::string>& 
   return best;
 }
 
+const std::vector<std::string> kSimulationKeys = {"engine", "material", "gravity", "ground",
+                                                  "planes", "regions",  "substeps"};
+
 namespace {
 
 /// Reads typed values from YAML nodes, throwing InputError with file, line and key.
@@ -421,11 +424,21 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
         s.simulation.substeps = r.integer(v, key);
         if (s.simulation.substeps < 1 || s.simulation.substeps > 10000)
           r.fail(v, key, "must be between 1 and 10000");
-      } else if (v.IsScalar()) {
-        // A material parameter; its name and range are checked by the engine.
-        s.simulation.parameters[k] = {r.number(v, key), v.Mark().line + 1};
       } else {
-        r.fail(v, key, "expected a number (a material parameter)");
+        // A material parameter (a number; its name and range are checked by the engine), or
+        // a misspelt key of this section (`materal: elastic`, `grond: {...}`).
+        bool numeric = false;
+        if (v.IsScalar() && !v.Scalar().empty()) {
+          char* end = nullptr;
+          std::strtod(v.Scalar().c_str(), &end);
+          numeric = end == v.Scalar().c_str() + v.Scalar().size();
+        }
+        const std::string near = nearest_key(k, kSimulationKeys);
+        if (!numeric && !near.empty())
+          throw InputError("unknown key (did you mean '" + near + "'?)", path,
+                           kv.first.Mark().line + 1, "key '" + key + "'");
+        if (!v.IsScalar()) r.fail(v, key, "expected a number (a material parameter)");
+        s.simulation.parameters[k] = {r.number(v, key), v.Mark().line + 1};
       }
     }
   }

@@ -122,6 +122,14 @@ TEST(BulletEngine, InvalidValuesAreInputErrors) {
   // An open sheet has no volume to keep.
   msg = error_of("  engine: bullet\n  material: elastic\n", grid);
   EXPECT_NE(msg.find("closed mesh"), std::string::npos) << msg;
+  // Away from the camera an open sheet's tetrahedra from the origin sum to a volume: it is
+  // still refused, as a soft solid and as rigid pieces.
+  pbve::Mesh far = grid;
+  far.vertices.col(2).array() += 1.3;
+  for (const char* material : {"elastic", "rigid"}) {
+    msg = error_of(std::string("  engine: bullet\n  material: ") + material + "\n", far);
+    EXPECT_NE(msg.find("borders a hole"), std::string::npos) << material << ": " << msg;
+  }
 }
 
 }  // namespace

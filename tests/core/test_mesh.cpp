@@ -723,6 +723,17 @@ TEST(MeshGeometry, TetrahedronAdjacency) {
   EXPECT_TRUE(vertex_adjacency(tet.triangles, 5)[4].empty());
 }
 
+TEST(MeshGeometry, FirstBoundaryEdgeFindsAHole) {
+  Mesh tet = make_tetrahedron();
+  EXPECT_FALSE(first_boundary_edge(tet.triangles).has_value());
+  const Triangles open = tet.triangles.topRows(3);  // one face removed: its three edges
+  const auto edge = first_boundary_edge(open);
+  ASSERT_TRUE(edge.has_value());
+  const Eigen::RowVector3i gone = tet.triangles.row(3);
+  EXPECT_LT(edge->first, edge->second);
+  EXPECT_TRUE((gone.array() == edge->first).any() && (gone.array() == edge->second).any());
+}
+
 TEST(MeshGeometry, OutOfRangeTriangleIndicesAreRefusedBeforeAnyRead) {
   const Mesh tet = make_tetrahedron();
   for (const int bad : {4, -1}) {

@@ -183,6 +183,12 @@ TEST_F(BadInput, RegionsOfACloth) {
                                                "(material elastic or stiff), not to cloth"});
 }
 
+TEST_F(BadInput, AMisspeltNumericSimulationKeyNamesTheNearestOne) {
+  replace(scene, "substeps: 3", "substep: 3");
+  expect_error(edit(), {location("substep:") + "key 'simulation.substep': unknown key for engine "
+                                               "mass_spring (did you mean 'substeps'?)"});
+}
+
 TEST_F(BadInput, WrongTypeNamesTheKey) {
   replace(scene, "substeps: 3", "substeps: many");
   expect_error(edit(), {location("substeps:") + "key 'simulation.substeps'",

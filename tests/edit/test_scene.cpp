@@ -176,6 +176,23 @@ TEST(SceneErrors, DuplicateKeysNameTheSecondAndTheFirstLine) {
       << e;
 }
 
+TEST(SceneErrors, AMisspeltSimulationKeyNamesTheNearestOne) {
+  // Any other key of `simulation:` is a material parameter, a number: a misspelt section key
+  // with another value is named as such, at its line.
+  std::string text = kFull;
+  text.replace(text.find("  material: cloth"), 16, "  materal: cloth");
+  std::string e = error_of(text);
+  EXPECT_NE(e.find(":12: key 'simulation.materal': unknown key (did you mean 'material'?)"),
+            std::string::npos)
+      << e;
+  text = kFull;
+  text.replace(text.find("  ground:"), 9, "  grond:");
+  e = error_of(text);
+  EXPECT_NE(e.find(":14: key 'simulation.grond': unknown key (did you mean 'ground'?)"),
+            std::string::npos)
+      << e;
+}
+
 TEST(SceneErrors, AnEmptyValueIsReportedAtItsKey) {
   // An empty value is a null node that the parser marks at the next token, here lines below.
   std::string text = kFull;

@@ -3,6 +3,8 @@
 // Newton tolerance; each is derived next to its assertion.
 
 #include <cmath>
+#include <stdexcept>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -22,6 +24,25 @@ using pbve::Vertices;
 using pbve::mass_spring::MassSpringSimulator;
 using pbve::mass_spring::Material;
 using pbve::mass_spring::Params;
+
+TEST(MassSpringModel, SolidsNeedAClosedSurface) {
+  // A flat sheet 1 m in front of the camera: its tetrahedra from the origin sum to a volume,
+  // but it encloses none.
+  const pbve::Mesh sheet = pbve::test::grid_mesh(5, 0.4, 1.0);
+  for (const Material m : {Material::elastic, Material::stiff}) {
+    try {
+      MassSpringSimulator sim(sheet, {}, Params::preset(m));
+      ADD_FAILURE() << "no error for an open sheet";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("needs a closed surface; the edge between vertices"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+  EXPECT_NO_THROW(MassSpringSimulator(sheet, {}, Params::preset(Material::cloth)));
+  const pbve::Mesh ball = pbve::test::icosphere(1, 0.1, {0, 0, 1});
+  EXPECT_NO_THROW(MassSpringSimulator(ball, {}, Params::preset(Material::elastic)));
+}
 
 TEST(MassSpringPhysics, FreeFallMatchesBackwardEulerBound) {
   // Backward Euler on x'' = g with substep h: v_n = n h g, x_n = x_0 + h^2 g n(n+1)/2

@@ -331,6 +331,10 @@ void BulletSimulator::Impl::build_soft(const Impl* like) {
   if (p.material == Material::cloth) {
     vertex_mass = p.density * area;
   } else {
+    if (const auto hole = first_boundary_edge(t))
+      fail("material " + to_string(p.material) +
+           " needs a closed mesh; the edge between vertices " + std::to_string(hole->first) +
+           " and " + std::to_string(hole->second) + " borders a hole (an open surface is cloth)");
     std::vector<Eigen::Vector3i> tris;
     for (Eigen::Index f = 0; f < t.rows(); ++f) tris.emplace_back(t(f, 0), t(f, 1), t(f, 2));
     rest_volume = volume_integrals(x, tris).volume;
@@ -483,6 +487,10 @@ void BulletSimulator::Impl::build_pieces() {
   const Params& p = rc.params;
   const int n = num_vertices;
   const Triangles& t = rc.triangles;
+  if (const auto hole = first_boundary_edge(t))
+    fail("material rigid needs closed pieces; the edge between vertices " +
+         std::to_string(hole->first) + " and " + std::to_string(hole->second) +
+         " borders a hole (an open surface is cloth)");
   // Connected components (union-find over triangle vertices).
   std::vector<int> parent(static_cast<size_t>(n));
   std::iota(parent.begin(), parent.end(), 0);

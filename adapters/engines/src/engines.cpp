@@ -28,7 +28,9 @@ void store_parameter(const EngineRecipe& r, const std::string& engine, const std
   if (!field && !int_field) {
     const auto names = engine_parameters(engine);
     std::string msg = "unknown key for engine " + engine;
-    const std::string near = nearest_key(key, names);
+    std::vector<std::string> candidates = names;  // a misspelt section key too (`substep`)
+    candidates.insert(candidates.end(), kSimulationKeys.begin(), kSimulationKeys.end());
+    const std::string near = nearest_key(key, candidates);
     if (!near.empty()) msg += " (did you mean '" + near + "'?)";
     msg += "; material parameters:";
     for (const auto& n : names) msg += " " + n;

@@ -314,6 +314,13 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
   if (!solid) {
     surface_mass = params.density * vertex_area;
   } else {
+    // Closed first: the volume of an open surface depends on the origin (a sheet far from the
+    // camera seemed to enclose one).
+    if (const auto hole = first_boundary_edge(tris))
+      throw std::invalid_argument(
+          "mass_spring: material '" + to_string(params.material) +
+          "' needs a closed surface; the edge between vertices " + std::to_string(hole->first) +
+          " and " + std::to_string(hole->second) + " borders a hole (an open surface is cloth)");
     const double volume = std::abs(signed_volume);
     if (!(volume > 1e-9 * std::pow(total_area, 1.5)))
       throw std::invalid_argument(

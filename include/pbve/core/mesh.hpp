@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -88,6 +89,11 @@ Mesh refine_mesh(const Mesh& mesh, double max_edge_length, int max_vertices = 0)
 /// a vertex index outside [0, num_vertices). The functions below that take vertices and
 /// triangles check it (a min/max pass over the indices) before reading any vertex.
 void check_triangle_indices(const Triangles& triangles, Eigen::Index num_vertices, const char* who);
+
+/// An edge used by one triangle only (it borders a hole), as its two vertex ids (smaller
+/// first, the smallest such edge), or nullopt when every edge is shared: the surface is closed
+/// (up to non-manifold edges, which validate_mesh() reports).
+std::optional<std::pair<int, int>> first_boundary_edge(const Triangles& triangles);
 
 /// Per-triangle unnormalized normals (b - a) x (c - a), #F by 3.
 Vertices triangle_normals(const Vertices& vertices, const Triangles& triangles);

@@ -161,4 +161,8 @@ std::string scene_to_yaml(const Scene& scene);
 /// Of `candidates`, the one nearest to `key` by edit distance (empty if none is close).
 std::string nearest_key(const std::string& key, const std::vector<std::string>& candidates);
 
+/// The keys of `simulation:` other than material parameters (engine, material, gravity,
+/// ground, planes, regions, substeps).
+extern const std::vector<std::string> kSimulationKeys;
+
 }  // namespace pbve
