@@ -122,11 +122,19 @@ void check_output_path(const fs::path& out, const Scene& scene, const std::strin
   throw scene_error(scene, key, message);
 }
 
+/// The scene's footage; an error opening it names the input's key and line too.
 Footage open_footage(const Scene& s) {
-  if (!s.input.video.empty()) return Footage::open_video(s.input.video);
-  if (!s.input.image.empty())
-    return Footage::open_image(s.input.image, s.input.frames, s.input.fps);
-  return Footage::open_sequence(s.input.sequence, s.input.fps);
+  const char* key = !s.input.video.empty()   ? "input.video"
+                    : !s.input.image.empty() ? "input.image"
+                                             : "input.sequence";
+  try {
+    if (!s.input.video.empty()) return Footage::open_video(s.input.video);
+    if (!s.input.image.empty())
+      return Footage::open_image(s.input.image, s.input.frames, s.input.fps);
+    return Footage::open_sequence(s.input.sequence, s.input.fps);
+  } catch (const InputError& e) {
+    throw scene_error(s, key, (e.file().empty() ? "" : e.file().string() + ": ") + e.message());
+  }
 }
 
 ControlOptions control_options(const SceneControl& c) {
@@ -532,7 +540,14 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   render_options.scale = scene.object.scale;
   Renderer renderer(mesh, camera, render_options);
   std::optional<MaskSequence> masks;
-  if (!scene.background.remove.empty()) masks.emplace(scene.background.remove, footage.size());
+  if (!scene.background.remove.empty()) {
+    try {
+      masks.emplace(scene.background.remove, footage.size());
+    } catch (const InputError& e) {
+      throw scene_error(scene, "background.remove",
+                        (e.file().empty() ? "" : e.file().string() + ": ") + e.message());
+    }
+  }
   auto extra_mask = [&](int t) { return masks ? masks->mask(t) : cv::Mat(); };
   cv::Mat plate;
   if (!scene.background.plate.empty()) {

@@ -353,6 +353,16 @@ TEST_F(BadInput, APoseFileNeedsPosesOnlyUpToTheEditedRange) {
                {"poses.txt: the pose file has 2 poses but the footage has 3 frames"});
 }
 
+TEST_F(BadInput, AMissingSequenceOrMaskSequenceNamesItsKey) {
+  replace(scene, "input: {video: clip.mp4}", "input: {sequence: nope/%04d.png, fps: 30}");
+  expect_error(edit(), {location("input:") + "key 'input.sequence': ",
+                        "nope/%04d.png: empty image sequence"});
+  replace(scene, "input: {sequence: nope/%04d.png, fps: 30}", "input: {video: clip.mp4}");
+  replace(scene, "simulation:", "background: {remove: nope/%04d.png}\nsimulation:");
+  expect_error(edit(), {location("background:") + "key 'background.remove': ",
+                        "no mask file for the first frame"});
+}
+
 TEST_F(BadInput, AFrameRateWithAVideoIsRefused) {
   replace(scene, "input: {video: clip.mp4}", "input: {video: clip.mp4, fps: 60}");
   expect_error(edit(), {location("input:") + "key 'input.fps': only used with input.image or "
