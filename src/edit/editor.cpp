@@ -106,22 +106,6 @@ void check_output_path(const fs::path& out, const Scene& scene, const std::strin
   }
 }
 
-/// Adds the scene file's line to an engine's error about a scene key or material parameter.
-[[noreturn]] void rethrow_engine_error(const InputError& e, const Scene& scene) {
-  if (e.file() != scene.file || e.line() > 0) throw e;
-  std::string message = e.message();
-  const std::string prefix = scene.simulation.engine + ": ";
-  while (message.rfind(prefix + prefix, 0) == 0) message.erase(0, prefix.size());
-  std::string key;
-  if (e.key().rfind("key '", 0) == 0 && e.key().size() > 6)
-    key = e.key().substr(5, e.key().size() - 6);
-  for (const auto& [name, value_line] : scene.simulation.parameters)
-    if (key.empty() && message.find("parameter " + name + " ") != std::string::npos)
-      key = "simulation." + name;
-  if (key.empty()) throw InputError(message, scene.file, 0, e.key());
-  throw scene_error(scene, key, message);
-}
-
 /// The scene's footage; an error opening it names the input's key and line too.
 Footage open_footage(const Scene& s) {
   const char* key = !s.input.video.empty()   ? "input.video"
@@ -478,7 +462,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   try {
     sim = cb.make_simulator(recipe);
   } catch (const InputError& e) {
-    rethrow_engine_error(e, scene);
+    throw engine_error_in_scene(e, scene);
   }
   if (!sim)
     throw scene_error(scene, "simulation.engine",

@@ -193,6 +193,21 @@ std::pair<Eigen::Vector3d, Eigen::Vector3d> read_box(const Reader& r, const YAML
 
 }  // namespace
 
+InputError engine_error_in_scene(const InputError& e, const Scene& scene) {
+  if (e.file() != scene.file || e.line() > 0) return e;
+  std::string message = e.message();
+  const std::string prefix = scene.simulation.engine + ": ";
+  while (message.rfind(prefix + prefix, 0) == 0) message.erase(0, prefix.size());
+  std::string key;
+  if (e.key().rfind("key '", 0) == 0 && e.key().size() > 6)
+    key = e.key().substr(5, e.key().size() - 6);
+  for (const auto& [name, value_line] : scene.simulation.parameters)
+    if (key.empty() && message.find("parameter " + name + " ") != std::string::npos)
+      key = "simulation." + name;
+  if (key.empty()) return InputError(message, scene.file, 0, e.key());
+  return InputError(message, scene.file, scene.line_of(key), "key '" + key + "'");
+}
+
 int Scene::line_of(const std::string& key) const {
   const auto it = lines.find(key);
   return it == lines.end() ? 0 : it->second;

@@ -242,6 +242,29 @@ TEST_F(TrackCli, PosesTrackTracksOnlyUpToTheEditedRange) {
   EXPECT_FALSE(fs::exists(dir / "edited.poses.txt"));
 }
 
+TEST_F(TrackCli, EngineSettingsAreCheckedBeforeTracking) {
+  // A bad material parameter or material is found before any tracking: no poses written.
+  for (const std::string& bad :
+       {std::string("  density: -1\n"), std::string("  material: rigid\n")}) {
+    std::string text = tracking_scene(dir.path(), "  initial_pose: init.txt\n");
+    ASSERT_FALSE(text.empty());
+    if (bad.find("material") != std::string::npos)
+      text.replace(text.find("  material: cloth\n"), 17, bad);
+    else
+      text.replace(text.find("simulation:\n"), 12, "simulation:\n" + bad);
+    std::ofstream(dir / "track_scene.yaml") << text;
+    const CmdResult r = pbve_cmd("edit " + (dir / "track_scene.yaml").string() + " --no-control");
+    EXPECT_EQ(r.status, 1) << r.output;
+    const std::string key = bad.substr(2, bad.find(':') - 2);
+    EXPECT_NE(r.output.find("track_scene.yaml:" + std::to_string(line_of(text, bad)) +
+                            ": key 'simulation." + key + "'"),
+              std::string::npos)
+        << r.output;
+    EXPECT_EQ(r.output.find("tracked poses"), std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(dir / "edited.poses.txt")) << bad;
+  }
+}
+
 TEST_F(TrackCli, PosesTrackWithoutAnInitialPoseNamesTheKeyAndLine) {
   const std::string text = tracking_scene(dir.path(), "");
   ASSERT_FALSE(text.empty());

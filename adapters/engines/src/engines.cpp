@@ -44,7 +44,15 @@ void store_parameter(const EngineRecipe& r, const std::string& engine, const std
 }
 
 #ifdef PBVE_ENGINE_MASS_SPRING
-std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
+/// An adapter's invalid_argument as an InputError about the scene file, naming the engine once.
+InputError mass_spring_error(const std::invalid_argument& e, const EngineRecipe& r) {
+  const std::string what = e.what();  // the adapter's messages mostly name it already
+  return InputError(what.rfind("mass_spring: ", 0) == 0 ? what : "mass_spring: " + what,
+                    r.scene_file);
+}
+
+/// The recipe's mass_spring parameters, validated (no mesh needed).
+mass_spring::Params mass_spring_params(const EngineRecipe& r) {
   namespace ms = mass_spring;
   const SceneSimulation& s = r.simulation;
   if (s.material == "rigid")
@@ -124,19 +132,28 @@ std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
              "regions apply to solids (material elastic or stiff), not to cloth");
   try {
     p.validate();
-    return std::make_unique<ms::MassSpringSimulator>(r.mesh, r.rest_positions, r.anchors, p);
+  } catch (const std::invalid_argument& e) {
+    throw mass_spring_error(e, r);
+  }
+  return p;
+}
+
+std::unique_ptr<Simulator> make_mass_spring(const EngineRecipe& r) {
+  const mass_spring::Params p = mass_spring_params(r);
+  try {
+    return std::make_unique<mass_spring::MassSpringSimulator>(r.mesh, r.rest_positions, r.anchors,
+                                                              p);
   } catch (const InputError&) {
     throw;
   } catch (const std::invalid_argument& e) {
-    const std::string what = e.what();  // the adapter's messages mostly name it already
-    throw InputError(what.rfind("mass_spring: ", 0) == 0 ? what : "mass_spring: " + what,
-                     r.scene_file);
+    throw mass_spring_error(e, r);
   }
 }
 #endif
 
 #ifdef PBVE_ENGINE_BULLET
-std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
+/// The recipe's Bullet parameters, validated (no mesh needed).
+bullet::Params bullet_params(const EngineRecipe& r) {
   namespace bt = bullet;
   const SceneSimulation& s = r.simulation;
   bt::Material material;
@@ -202,7 +219,16 @@ std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
              "the bullet engine has one material per object; regions need engine mass_spring");
   try {
     p.validate();
-    return std::make_unique<bt::BulletSimulator>(r.mesh, r.rest_positions, r.anchors, p);
+  } catch (const std::invalid_argument& e) {
+    throw InputError(e.what(), r.scene_file);
+  }
+  return p;
+}
+
+std::unique_ptr<Simulator> make_bullet(const EngineRecipe& r) {
+  const bullet::Params p = bullet_params(r);
+  try {
+    return std::make_unique<bullet::BulletSimulator>(r.mesh, r.rest_positions, r.anchors, p);
   } catch (const InputError&) {
     throw;
   } catch (const std::invalid_argument& e) {
@@ -282,6 +308,20 @@ void check_engine(const Scene& scene) {
   if (!why.empty())
     throw InputError(why, scene.file, scene.line_of("simulation.engine"),
                      "key 'simulation.engine'");
+  // The parameters too, which need no mesh: their errors come before any work (tracking).
+  EngineRecipe r;
+  r.simulation = scene.simulation;
+  r.scene_file = scene.file;
+  try {
+#ifdef PBVE_ENGINE_MASS_SPRING
+    if (scene.simulation.engine == "mass_spring") mass_spring_params(r);
+#endif
+#ifdef PBVE_ENGINE_BULLET
+    if (scene.simulation.engine == "bullet") bullet_params(r);
+#endif
+  } catch (const InputError& e) {
+    throw engine_error_in_scene(e, scene);
+  }
 }
 
 }  // namespace pbve

@@ -13,6 +13,8 @@
 
 #include <Eigen/Core>
 
+#include "pbve/core/error.hpp"
+
 namespace pbve {
 
 /// `input:` — the footage.
@@ -154,6 +156,11 @@ Scene load_scene(const std::filesystem::path& path);
 
 /// Parses scene text as if read from `path` (relative paths resolve against its folder).
 Scene parse_scene(const std::string& text, const std::filesystem::path& path);
+
+/// An engine's InputError about this scene (its file, no line: a scene key such as
+/// `simulation.material`, or a message naming `parameter NAME`) with the key's line added; any
+/// other error as it is.
+InputError engine_error_in_scene(const InputError& e, const Scene& scene);
 
 /// The scene as YAML text (absolute paths), e.g. for the report's `settings`.
 std::string scene_to_yaml(const Scene& scene);

@@ -27,9 +27,10 @@ std::vector<std::string> engine_parameters(const std::string& engine);
 /// invalid value.
 std::unique_ptr<Simulator> make_engine(const EngineRecipe& recipe);
 
-/// Checks, before any work, that the scene's engine is one of available_engines(): throws
-/// InputError naming the scene file, the line of `simulation.engine` and the nearest engine
-/// otherwise.
+/// Checks, before any work, that the scene's engine is one of available_engines() (InputError
+/// naming the scene file, the line of `simulation.engine` and the nearest engine otherwise) and
+/// that its `simulation:` parameters are valid for it (InputError with the key and its line):
+/// everything make_engine() checks that needs no mesh.
 void check_engine(const Scene& scene);
 
 }  // namespace pbve
