@@ -347,11 +347,11 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     const Pose initial = [&] {
       if (!scene.object.correspondences.empty())
         return pose_from_correspondence_file(scene.object.correspondences, given, camera);
-      const PoseTrack first = load_pose_file(scene.object.initial_pose);
-      if (first.size() == 0 || !first.poses[0])
+      const PoseTrack start = load_pose_file(scene.object.initial_pose);
+      if (start.size() == 0 || !start.poses[0])
         throw InputError("the first line must be a pose (not `lost`) for frame 0",
                          scene.object.initial_pose, 1);
-      return *first.poses[0];
+      return *start.poses[0];
     }();
     // Only the frames the edit needs: 0 (the initial pose) to the end of the edited range.
     Footage clip = open_footage(scene);

@@ -101,10 +101,17 @@ void polyline(cv::Mat& img, const Panel& p, const std::vector<FrameRecord>& fram
 std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step) {
   std::vector<double> ticks;
   if (!(hi >= lo) || !std::isfinite(lo) || !std::isfinite(hi)) return ticks;
+  if (hi == lo) return {lo};
   const double step = round_step(hi - lo, max_intervals, min_step);
   const double eps = 1e-9 * step;
-  for (double k = std::ceil(lo / step - 1e-9); k * step <= hi + eps; k += 1.0)
-    ticks.push_back(k * step == 0.0 ? 0.0 : k * step);  // no -0
+  const double k0 = std::ceil(lo / step - 1e-9);
+  // At most max_intervals + 1 ticks by construction; the bound also stops a step too small to
+  // advance k (a range far from zero).
+  for (int i = 0; i <= std::max(max_intervals, 1) + 1; ++i) {
+    const double v = (k0 + i) * step;
+    if (v > hi + eps) break;
+    ticks.push_back(v == 0.0 ? 0.0 : v);  // no -0
+  }
   return ticks;
 }
 

@@ -190,10 +190,11 @@ class ReportFields {
               int fallback) const {
     const json* v = field(o, where, name, required);
     if (!v) return fallback;
-    const double d = v->is_number() ? v->get<double>() : 0.5;
+    if (!v->is_number())
+      fail(where + name, std::string("expected a whole number, found ") + kind(*v));
+    const double d = v->get<double>();
     if (d != std::floor(d) || std::abs(d) > 2e9)
-      fail(where + name, "expected a whole number, found " +
-                             (v->is_number() ? v->dump() : std::string(kind(*v))));
+      fail(where + name, "expected a whole number, found " + v->dump());
     return static_cast<int>(d);
   }
   bool boolean(const json& o, const std::string& where, const char* name, bool fallback) const {

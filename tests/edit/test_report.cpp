@@ -159,6 +159,8 @@ TEST(Plot, AxisTicksAreRoundNumbersWithinTheRange) {
   ASSERT_EQ(small.size(), 7u);
   EXPECT_NEAR(small[6], 0.3, 1e-12);
   EXPECT_TRUE(pbve::axis_ticks(1, 0, 6).empty());
+  EXPECT_EQ(pbve::axis_ticks(5, 5, 6), (V{5}));
+  EXPECT_LE(pbve::axis_ticks(1e12, 1e12 + 1e-3, 6).size(), 7u);  // ends
 }
 
 }  // namespace
