@@ -742,23 +742,6 @@ class DifferenceModel final : public SearchModel {
   std::vector<Vertices> m_response;
 };
 
-// The gradient mode `mode` resolves to for `sim`: central, compressed or adjoint.
-GradientMode resolve_gradient(const Simulator& sim, GradientMode mode) {
-  switch (mode) {
-    case GradientMode::central:
-    case GradientMode::compressed:
-      return mode;
-    case GradientMode::adjoint:
-      if (!sim.has_derivatives())
-        throw std::invalid_argument("gradient: adjoint requested but " + sim.name() +
-                                    " offers no derivatives");
-      return mode;
-    case GradientMode::automatic:
-      return sim.has_derivatives() ? GradientMode::adjoint : GradientMode::compressed;
-  }
-  return GradientMode::central;
-}
-
 int window_frames(const ControlOptions& options, std::span<const ControlFrameInput> window) {
   if (window.empty()) throw std::invalid_argument("ControlOptimizer: empty window");
   return std::min<int>(std::max(options.window, 1), static_cast<int>(window.size()));
@@ -791,6 +774,22 @@ double control_force_sum(const Eigen::VectorXd& u, int bs) {
 }
 
 }  // namespace
+
+GradientMode resolve_gradient(const Simulator& sim, GradientMode mode) {
+  switch (mode) {
+    case GradientMode::central:
+    case GradientMode::compressed:
+      return mode;
+    case GradientMode::adjoint:
+      if (!sim.has_derivatives())
+        throw std::invalid_argument("gradient: adjoint requested but " + sim.name() +
+                                    " offers no derivatives");
+      return mode;
+    case GradientMode::automatic:
+      return sim.has_derivatives() ? GradientMode::adjoint : GradientMode::compressed;
+  }
+  return GradientMode::central;
+}
 
 const char* to_string(ControlStatus status) {
   switch (status) {

@@ -106,6 +106,11 @@ void check_output_path(const fs::path& out, const Scene& scene, const std::strin
   }
 }
 
+/// An error reading the file of scene key `key`, at the key's line, the file kept in the text.
+InputError scene_error(const Scene& s, const std::string& key, const InputError& e) {
+  return scene_error(s, key, (e.file().empty() ? "" : e.file().string() + ": ") + e.message());
+}
+
 /// The scene's footage; an error opening it names the input's key and line too.
 Footage open_footage(const Scene& s) {
   const char* key = !s.input.video.empty()   ? "input.video"
@@ -117,7 +122,7 @@ Footage open_footage(const Scene& s) {
       return Footage::open_image(s.input.image, s.input.frames, s.input.fps);
     return Footage::open_sequence(s.input.sequence, s.input.fps);
   } catch (const InputError& e) {
-    throw scene_error(s, key, (e.file().empty() ? "" : e.file().string() + ": ") + e.message());
+    throw scene_error(s, key, e);
   }
 }
 
@@ -476,11 +481,16 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
                            " surface vertices, the mesh " + std::to_string(mesh.num_vertices()));
 
   const bool control = options.control.value_or(scene.control.enabled);
-  if (control && scene.control.gradient == "adjoint" && !sim->has_derivatives())
-    throw scene_error(scene, "control.gradient",
-                      "adjoint gradients need an engine with derivatives; " + sim->name() +
-                          " has none (use auto, compressed or central)");
-  ControlOptimizer optimizer(mesh.triangles, mesh.interior, control_options(scene.control));
+  const ControlOptions control_settings = control_options(scene.control);
+  if (control) {
+    try {
+      resolve_gradient(*sim, control_settings.gradient);  // before any output, not per frame
+    } catch (const std::invalid_argument& e) {
+      throw scene_error(scene, "control.gradient",
+                        std::string(e.what()) + " (use auto, compressed or central)");
+    }
+  }
+  ControlOptimizer optimizer(mesh.triangles, mesh.interior, control_settings);
   const double dt = 1.0 / footage.fps();
 
   // The vertices the engine holds (it may hold others than those selected, e.g. the sheet
@@ -528,8 +538,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     try {
       masks.emplace(scene.background.remove, footage.size());
     } catch (const InputError& e) {
-      throw scene_error(scene, "background.remove",
-                        (e.file().empty() ? "" : e.file().string() + ": ") + e.message());
+      throw scene_error(scene, "background.remove", e);
     }
   }
   auto extra_mask = [&](int t) { return masks ? masks->mask(t) : cv::Mat(); };

@@ -442,18 +442,19 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
       } else {
         // A material parameter (a number; its name and range are checked by the engine), or
         // a misspelt key of this section (`materal: elastic`, `grond: {...}`).
-        bool numeric = false;
-        if (v.IsScalar() && !v.Scalar().empty()) {
-          char* end = nullptr;
-          std::strtod(v.Scalar().c_str(), &end);
-          numeric = end == v.Scalar().c_str() + v.Scalar().size();
-        }
         const std::string near = nearest_key(k, kSimulationKeys);
-        if (!numeric && !near.empty())
-          throw InputError("unknown key (did you mean '" + near + "'?)", path,
-                           kv.first.Mark().line + 1, "key '" + key + "'");
-        if (!v.IsScalar()) r.fail(v, key, "expected a number (a material parameter)");
-        s.simulation.parameters[k] = {r.number(v, key), v.Mark().line + 1};
+        const InputError misspelt("unknown key (did you mean '" + near + "'?)", path,
+                                  kv.first.Mark().line + 1, "key '" + key + "'");
+        if (!v.IsScalar()) {
+          if (!near.empty()) throw misspelt;
+          r.fail(v, key, "expected a number (a material parameter)");
+        }
+        try {
+          s.simulation.parameters[k] = {r.number(v, key), v.Mark().line + 1};
+        } catch (const InputError&) {
+          if (!near.empty()) throw misspelt;
+          throw;
+        }
       }
     }
   }

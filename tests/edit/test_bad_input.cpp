@@ -378,8 +378,8 @@ TEST_F(BadInput, AdjointGradientsWithAnEngineWithoutDerivatives) {
   if (r.output.find("not built") != std::string::npos ||
       r.output.find("is not one of") != std::string::npos)
     GTEST_SKIP() << "no Bullet in this build: " << r.output;
-  expect_error(r, {location("gradient:") + "key 'control.gradient': adjoint gradients need an "
-                                           "engine with derivatives; bullet has none"});
+  expect_error(r, {location("gradient:") + "key 'control.gradient': gradient: adjoint requested "
+                                           "but bullet offers no derivatives"});
 }
 
 TEST_F(BadInput, TheReportsSettingsAreTheRunsNotTheScenes) {

@@ -70,6 +70,11 @@ enum class GradientMode {
   adjoint,  ///< Simulator::step_vjp(); throws std::invalid_argument when not offered
 };
 
+/// The mode `mode` resolves to for `sim`: automatic becomes adjoint when the simulator has
+/// derivatives, compressed otherwise. Throws std::invalid_argument for adjoint on a simulator
+/// without derivatives.
+GradientMode resolve_gradient(const Simulator& sim, GradientMode mode);
+
 /// Which control blocks are optimized.
 enum class ActiveSet {
   at_risk,  ///< blocks near must-stay-hidden triangles close to turning visible (default)
