@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # Installs the build tree BUILD_DIR into a temporary prefix, runs the installed pbve command
 # (when installed), then configures, builds and runs a separate consumer project that finds pbve
-# with find_package(pbve REQUIRED): a program, and the example adapter's conformance test.
-# Usage: check_install.sh BUILD_DIR [CMAKE_ARG...]   (extra arguments configure the consumer)
+# with find_package(pbve REQUIRED): a program, and the example adapter's conformance test. Then
+# builds and runs the same program without CMake, with the flags of the installed pbve.pc
+# (pkg-config; --static for static libraries).
+# Usage: check_install.sh BUILD_DIR [CMAKE_ARG...]   (extra arguments configure the consumer;
+# its CMAKE_CXX_COMPILER, CMAKE_CXX_FLAGS and CMAKE_EXE_LINKER_FLAGS also build the second one)
 set -euo pipefail
 build_dir=$(cd "$1" && pwd)
 shift
@@ -22,3 +25,27 @@ cmake -S "$here/consumer" -B "$work/build" "${generator[@]}" -DCMAKE_PREFIX_PATH
 cmake --build "$work/build" >/dev/null
 "$work/build/pbve_consumer"
 "$work/build/adapter_conformance" --gtest_brief=1
+
+cxx=c++ cxxflags="" ldflags=""
+for a in "$@"; do
+  case $a in
+    -DCMAKE_CXX_COMPILER=*) cxx=${a#*=} ;;
+    -DCMAKE_CXX_FLAGS=*) cxxflags=${a#*=} ;;
+    -DCMAKE_EXE_LINKER_FLAGS=*) ldflags=${a#*=} ;;
+  esac
+done
+pc=$(find "$work/prefix" -name pbve.pc -print -quit)
+if [ -z "$pc" ]; then
+  echo "check_install: no pbve.pc under the prefix" >&2
+  exit 1
+fi
+static=()
+[ -n "$(find "$work/prefix" -name libpbve_core.a -print -quit)" ] && static=(--static)
+export PKG_CONFIG_PATH
+PKG_CONFIG_PATH=$(dirname "$pc")
+libdir=$(pkg-config --variable=libdir pbve)
+read -ra pc_flags <<<"$(pkg-config "${static[@]}" --cflags --libs pbve)"
+read -ra extra <<<"$cxxflags $ldflags"
+"$cxx" "${extra[@]}" "$here/consumer/main.cpp" -o "$work/pc_consumer" "${pc_flags[@]}" \
+  -Wl,-rpath,"$libdir"
+"$work/pc_consumer"
