@@ -22,8 +22,8 @@ install(FILES ${PROJECT_BINARY_DIR}/pbveConfig.cmake ${PROJECT_BINARY_DIR}/pbveC
               ${PROJECT_SOURCE_DIR}/cmake/PbveCholmod.cmake
         DESTINATION ${CMAKE_INSTALL_LIBDIR}/cmake/pbve)
 
-# pbve.pc, for builds without CMake: `pkg-config --cflags --libs pbve` (add --static for static
-# pbve libraries, whose private dependencies then come along).
+# pbve.pc, for builds without CMake: `c++ -std=c++20 app.cpp $(pkg-config --cflags --libs pbve)`
+# (add --static for static pbve libraries, whose private dependencies then come along).
 set(PBVE_PC_LIBS "")
 foreach(t engines mass_spring bullet)
   if(TARGET pbve_${t})
@@ -31,21 +31,34 @@ foreach(t engines mass_spring bullet)
   endif()
 endforeach()
 string(APPEND PBVE_PC_LIBS "-lpbve_core")
-set(PBVE_PC_REQUIRES_PRIVATE "")
+# A static pbve's private dependencies as link flags (not Requires.private, whose compile flags
+# pkg-config would pass to every program: Bullet's double precision among them). Embree 3 and
+# Debian 12's CHOLMOD have no pkg-config file.
 set(PBVE_PC_LIBS_PRIVATE "")
 if(NOT BUILD_SHARED_LIBS)
-  # Embree 3 and Debian 12's CHOLMOD have no pkg-config file.
-  set(PBVE_PC_REQUIRES_PRIVATE "tbb nlopt ipopt yaml-cpp")
-  set(PBVE_PC_LIBS_PRIVATE "-lembree3 -lcholmod")
+  set(pc_private embree3 tbb nlopt ${IPOPT_LIBRARIES} yaml-cpp cholmod)
   if(TARGET pbve_bullet)
-    string(APPEND PBVE_PC_REQUIRES_PRIVATE " bullet-float64")
+    list(APPEND pc_private ${BULLET_LIBRARIES})
   endif()
+  list(TRANSFORM pc_private PREPEND -l)
+  list(REMOVE_DUPLICATES pc_private)
+  list(JOIN pc_private " " PBVE_PC_LIBS_PRIVATE)
 endif()
-if(IS_ABSOLUTE "${CMAKE_INSTALL_LIBDIR}" OR IS_ABSOLUTE "${CMAKE_INSTALL_INCLUDEDIR}")
-  message(STATUS "pbve.pc not installed: CMAKE_INSTALL_LIBDIR and CMAKE_INSTALL_INCLUDEDIR must be relative")
+# Relocatable (paths from the file's own folder) when the library and include folders are
+# relative to the prefix; absolute install folders are written as they are.
+if(IS_ABSOLUTE "${CMAKE_INSTALL_LIBDIR}")
+  set(PBVE_PC_PREFIX "${CMAKE_INSTALL_PREFIX}")
+  set(PBVE_PC_LIBDIR "${CMAKE_INSTALL_LIBDIR}")
 else()
-  # From <prefix>/<libdir>/pkgconfig back to <prefix>: one ".." per component.
-  string(REGEX REPLACE "[^/]+" ".." PBVE_PC_PREFIX_FROM_PCDIR "${CMAKE_INSTALL_LIBDIR}/pkgconfig")
-  configure_file(${PROJECT_SOURCE_DIR}/cmake/pbve.pc.in ${PROJECT_BINARY_DIR}/pbve.pc @ONLY)
-  install(FILES ${PROJECT_BINARY_DIR}/pbve.pc DESTINATION ${CMAKE_INSTALL_LIBDIR}/pkgconfig)
+  file(RELATIVE_PATH pc_up "/pbve_root/${CMAKE_INSTALL_LIBDIR}/pkgconfig" "/pbve_root")
+  string(REGEX REPLACE "/$" "" pc_up "${pc_up}")
+  set(PBVE_PC_PREFIX "\${pcfiledir}/${pc_up}")
+  set(PBVE_PC_LIBDIR "\${prefix}/${CMAKE_INSTALL_LIBDIR}")
 endif()
+if(IS_ABSOLUTE "${CMAKE_INSTALL_INCLUDEDIR}")
+  set(PBVE_PC_INCLUDEDIR "${CMAKE_INSTALL_INCLUDEDIR}")
+else()
+  set(PBVE_PC_INCLUDEDIR "\${prefix}/${CMAKE_INSTALL_INCLUDEDIR}")
+endif()
+configure_file(${PROJECT_SOURCE_DIR}/cmake/pbve.pc.in ${PROJECT_BINARY_DIR}/pbve.pc @ONLY)
+install(FILES ${PROJECT_BINARY_DIR}/pbve.pc DESTINATION ${CMAKE_INSTALL_LIBDIR}/pkgconfig)

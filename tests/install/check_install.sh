@@ -42,10 +42,12 @@ fi
 static=()
 [ -n "$(find "$work/prefix" -name libpbve_core.a -print -quit)" ] && static=(--static)
 export PKG_CONFIG_PATH
-PKG_CONFIG_PATH=$(dirname "$pc")
+PKG_CONFIG_PATH=$(dirname "$pc")${PKG_CONFIG_PATH:+:$PKG_CONFIG_PATH}
+pkg-config --print-errors --exists pbve
 libdir=$(pkg-config --variable=libdir pbve)
-read -ra pc_flags <<<"$(pkg-config "${static[@]}" --cflags --libs pbve)"
+flags=$(pkg-config "${static[@]}" --cflags --libs pbve)
+read -ra pc_flags <<<"$flags"
 read -ra extra <<<"$cxxflags $ldflags"
-"$cxx" "${extra[@]}" "$here/consumer/main.cpp" -o "$work/pc_consumer" "${pc_flags[@]}" \
-  -Wl,-rpath,"$libdir"
+"$cxx" -std=c++20 "${extra[@]}" "$here/consumer/main.cpp" -o "$work/pc_consumer" \
+  "${pc_flags[@]}" -Wl,-rpath,"$libdir"
 "$work/pc_consumer"
