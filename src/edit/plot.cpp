@@ -17,15 +17,6 @@ const cv::Scalar kGrid(225, 225, 225);
 // Colour per report (BGR): blue-ish, orange-ish, green, purple.
 const cv::Scalar kColours[] = {{180, 110, 30}, {30, 120, 230}, {60, 160, 60}, {160, 60, 150}};
 
-std::string fmt(double v) {
-  char buf[32];
-  if (v != 0.0 && (std::abs(v) >= 1e4 || std::abs(v) < 1e-2))
-    std::snprintf(buf, sizeof buf, "%.0e", v);
-  else
-    std::snprintf(buf, sizeof buf, "%.3g", v);
-  return buf;
-}
-
 struct Panel {
   cv::Rect box;
   double x0, x1, y0, y1;
@@ -70,14 +61,16 @@ void axes(cv::Mat& img, const Panel& p, const std::string& title, const std::str
     // Whole decades, every one up to 6 of them.
     const double every = std::ceil((p.y1 - p.y0) / 6.0);
     for (double d = p.y0; d <= p.y1 + 1e-9; d += every)
-      y_tick((d - p.y0) / (p.y1 - p.y0), fmt(std::pow(10.0, d)));
+      y_tick((d - p.y0) / (p.y1 - p.y0), tick_label(std::pow(10.0, d)));
   } else {
-    for (const double v : axis_ticks(p.y0, p.y1, 6)) y_tick((v - p.y0) / (p.y1 - p.y0), fmt(v));
+    for (const double v : axis_ticks(p.y0, p.y1, 6))
+      y_tick((v - p.y0) / (p.y1 - p.y0), tick_label(v));
   }
   // Frame numbers at whole frames (a short report got 0 0 0 1 1 1 once).
   for (const double frame : axis_ticks(p.x0, p.x1, 6, 1.0))
-    cv::putText(img, fmt(frame), {p.map(frame, 0.0).x - 10, p.box.y + p.box.height + 20},
-                cv::FONT_HERSHEY_SIMPLEX, 0.45, kInk, 1, cv::LINE_AA);
+    cv::putText(img, std::to_string(std::llround(frame)),
+                {p.map(frame, 0.0).x - 10, p.box.y + p.box.height + 20}, cv::FONT_HERSHEY_SIMPLEX,
+                0.45, kInk, 1, cv::LINE_AA);
   cv::rectangle(img, p.box, kInk, 1);
   cv::putText(img, title, {p.box.x, p.box.y - 12}, cv::FONT_HERSHEY_SIMPLEX, 0.6, kInk, 1,
               cv::LINE_AA);
@@ -97,6 +90,15 @@ void polyline(cv::Mat& img, const Panel& p, const std::vector<FrameRecord>& fram
 }
 
 }  // namespace
+
+std::string tick_label(double v) {
+  char buf[32];
+  if (v != 0.0 && (std::abs(v) >= 1e4 || std::abs(v) < 1e-2))
+    std::snprintf(buf, sizeof buf, "%.0e", v);
+  else
+    std::snprintf(buf, sizeof buf, "%.4g", v);
+  return buf;
+}
 
 std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step) {
   std::vector<double> ticks;

@@ -163,4 +163,17 @@ TEST(Plot, AxisTicksAreRoundNumbersWithinTheRange) {
   EXPECT_LE(pbve::axis_ticks(1e12, 1e12 + 1e-3, 6).size(), 7u);  // ends
 }
 
+TEST(Plot, TickLabelsAreShortAndPlain) {
+  EXPECT_EQ(pbve::tick_label(0), "0");
+  EXPECT_EQ(pbve::tick_label(0.25), "0.25");
+  EXPECT_EQ(pbve::tick_label(40), "40");
+  EXPECT_EQ(pbve::tick_label(100), "100");
+  EXPECT_EQ(pbve::tick_label(1000), "1000");  // a force decade; was "1e+03"
+  EXPECT_EQ(pbve::tick_label(2500), "2500");
+  EXPECT_EQ(pbve::tick_label(1e4), "1e+04");
+  EXPECT_EQ(pbve::tick_label(0.01), "0.01");
+  EXPECT_EQ(pbve::tick_label(1e-3), "1e-03");
+  EXPECT_EQ(pbve::tick_label(-20), "-20");
+}
+
 }  // namespace

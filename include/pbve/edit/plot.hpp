@@ -24,4 +24,9 @@ cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::
 /// end to end. Empty when hi < lo.
 std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step = 0.0);
 
+/// The text of a value axis's tick at v: up to four significant digits ("0.25", "40", "1000"),
+/// scientific below 0.01 and from 10^4 on ("1e-03", "1e+04"); "0" for 0. (Frame numbers are
+/// written as whole numbers.)
+std::string tick_label(double v);
+
 }  // namespace pbve
