@@ -60,5 +60,17 @@ if(IS_ABSOLUTE "${CMAKE_INSTALL_INCLUDEDIR}")
 else()
   set(PBVE_PC_INCLUDEDIR "\${prefix}/${CMAKE_INSTALL_INCLUDEDIR}")
 endif()
+# The dependencies' header folders as system headers, as CMake consumers get them: GCC then
+# ignores the same folder's -I from their own pkg-config files (OpenCV 4.6's headers give C++20
+# deprecation warnings in any program that includes them otherwise). The compiler's own folders
+# are left out (-isystem /usr/include would break the standard library's #include_next).
+set(PBVE_PC_SYSTEM_CFLAGS "")
+get_target_property(pc_eigen_dirs Eigen3::Eigen INTERFACE_INCLUDE_DIRECTORIES)
+foreach(dir IN LISTS OpenCV_INCLUDE_DIRS pc_eigen_dirs)
+  if(dir AND NOT dir MATCHES "[$]<" AND NOT dir IN_LIST CMAKE_CXX_IMPLICIT_INCLUDE_DIRECTORIES
+     AND NOT dir MATCHES "^/usr(/local)?/include/?$")
+    string(APPEND PBVE_PC_SYSTEM_CFLAGS " -isystem ${dir}")
+  endif()
+endforeach()
 configure_file(${PROJECT_SOURCE_DIR}/cmake/pbve.pc.in ${PROJECT_BINARY_DIR}/pbve.pc @ONLY)
 install(FILES ${PROJECT_BINARY_DIR}/pbve.pc DESTINATION ${CMAKE_INSTALL_LIBDIR}/pkgconfig)

@@ -3,7 +3,8 @@
 # (when installed), then configures, builds and runs a separate consumer project that finds pbve
 # with find_package(pbve REQUIRED): a program, and the example adapter's conformance test. Then
 # builds and runs the same program without CMake, with the flags of the installed pbve.pc
-# (pkg-config; --static for static libraries).
+# (pkg-config; --static for static libraries), and compiles a header that includes OpenCV's
+# with -Wall -Wextra -Werror and those flags.
 # Usage: check_install.sh BUILD_DIR [CMAKE_ARG...]   (extra arguments configure the consumer;
 # its CMAKE_CXX_COMPILER, CMAKE_CXX_FLAGS and CMAKE_EXE_LINKER_FLAGS also build the second one)
 set -euo pipefail
@@ -51,3 +52,8 @@ read -ra extra <<<"$cxxflags $ldflags"
 "$cxx" -std=c++20 "${extra[@]}" "$here/consumer/main.cpp" -o "$work/pc_consumer" \
   "${pc_flags[@]}" -Wl,-rpath,"$libdir"
 "$work/pc_consumer"
+# A header that includes OpenCV's compiles without a warning: the dependencies' folders come as
+# system headers, as with CMake.
+printf '#include <pbve/core/footage.hpp>\nint main() { return 0; }\n' >"$work/headers.cpp"
+"$cxx" -std=c++20 -Wall -Wextra -Werror "${extra[@]}" -c "$work/headers.cpp" -o "$work/headers.o" \
+  "${pc_flags[@]}"
