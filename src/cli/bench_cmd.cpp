@@ -104,7 +104,7 @@ std::string utc_now() {
 const char* kHelp =
     "usage: pbve bench [-o BENCH.json] [--vertices 1000,4000,16000] [--frames A:B]\n"
     "                  [--modes unconstrained,adjoint,central] [--central-max-vertices N]\n"
-    "                  [--size WxH] [--work DIR]\n"
+    "                  [--size WxH] [--work DIR] [--quiet]\n"
     "\n"
     "End-to-end benchmark on example 1 (board to cloth): makes its synthetic clip, then edits\n"
     "input frames A:B with the mesh refined to about each requested vertex count, once per mode:\n"

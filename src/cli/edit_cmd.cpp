@@ -57,7 +57,8 @@ int run_edit(const std::vector<std::string>& argv) {
   Args args(argv);
   if (args.help()) {
     std::puts(
-        "usage: pbve edit SCENE.yaml [-o OUT.mp4] [--report R.json] [--no-control] [--frames A:B]\n"
+        "usage: pbve edit SCENE.yaml [-o OUT.mp4] [--report R.json] [--no-control | --control]\n"
+        "                 [--frames A:B] [--quiet]\n"
         "\n"
         "Simulates the scene's object with its new physics, optimizes control forces that keep\n"
         "the parts whose texture is unknown turned away from the camera, textures the simulated\n"
@@ -69,7 +70,8 @@ int run_edit(const std::vector<std::string>& argv) {
         "\n"
         "options:\n"
         "  -o, --output OUT   edited video (default: the scene's output.video)\n"
-        "  --report R.json    report (default: the scene's output.report)\n"
+        "  --report R.json    report (default: the scene's output.report, else the video's name\n"
+        "                     with .json)\n"
         "  --no-control       the unconstrained baseline: no control forces\n"
         "  --control          force control on even if the scene disables it\n"
         "  --frames A:B       edit input frames A (inclusive) to B (exclusive); either may be "
@@ -86,8 +88,10 @@ int run_edit(const std::vector<std::string>& argv) {
   EditOptions o;
   o.video = args.value("--output", "-o");
   o.report = args.value("--report");
-  if (args.flag("--no-control")) o.control = false;
-  if (args.flag("--control")) o.control = true;
+  const bool no_control = args.flag("--no-control"), control = args.flag("--control");
+  if (no_control && control) throw UsageError("--no-control and --control exclude each other");
+  if (no_control) o.control = false;
+  if (control) o.control = true;
   const std::string frames = args.value("--frames");
   if (!frames.empty()) parse_frames(frames, o);
   const bool quiet = args.flag("--quiet");

@@ -146,7 +146,7 @@ int run_plot(const std::vector<std::string>& argv) {
   if (ext != ".png" && ext != ".PNG")
     throw UsageError("the plot is a PNG image: give -o NAME.png, got " + out);
   for (const auto& p : pos)
-    if (same_file(out, p)) throw UsageError("the plot would overwrite the report " + p);
+    if (same_file(out, p)) throw InputError("the plot would overwrite the report " + p, out);
   check_writable(out);
   const cv::Mat img = plot_reports(reports, labels);
   write_atomically(out, [&](const fs::path& tmp) {

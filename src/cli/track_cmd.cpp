@@ -93,21 +93,22 @@ int run_track(const std::vector<std::string>& argv) {
   if (pos.size() != 2) throw UsageError("expected VIDEO and MESH");
   if (camera_spec.empty()) throw UsageError("--camera fx,fy,cx,cy is required");
   if (output.empty()) throw UsageError("-o POSES.txt is required");
-  if (initial.empty() == pairs.empty())
+  if (initial.empty() && pairs.empty())
     throw UsageError(
-        "the initial pose is missing: give --initial-pose FILE or --correspondences FILE "
-        "(exactly one)");
+        "the initial pose is missing: give --initial-pose FILE or --correspondences FILE");
+  if (!initial.empty() && !pairs.empty())
+    throw UsageError("--initial-pose and --correspondences exclude each other: give one");
   // Outputs: not an input (through any link or spelling), not each other, and writable, before
-  // any work.
+  // any work; refused with status 1, as `pbve edit` refuses its outputs.
   const std::vector<std::string> outputs = {output, overlay, log};
   for (size_t i = 0; i < outputs.size(); ++i) {
     if (outputs[i].empty()) continue;
     for (const auto& in : {pos[0], pos[1], initial, pairs, truth})
       if (same_file(outputs[i], in))
-        throw UsageError("the output " + outputs[i] + " would overwrite the input " + in);
+        throw InputError("the output would overwrite the input " + in, outputs[i]);
     for (size_t j = 0; j < i; ++j)
       if (same_file(outputs[i], outputs[j]))
-        throw UsageError("two outputs are the same file: " + outputs[j] + " and " + outputs[i]);
+        throw InputError("two outputs are the same file: " + outputs[j] + " and " + outputs[i]);
     check_writable(outputs[i]);
   }
 

@@ -419,7 +419,23 @@ std::string working_extensions() {
   return list.empty() ? "none" : list;
 }
 
+const CodecChoice* codec_for(const fs::path& path) {
+  const std::string ext = lower(path.extension().string());
+  const auto& table = codec_table();
+  const auto choice = std::find_if(table.begin(), table.end(),
+                                   [&](const CodecChoice& c) { return ext == c.extension; });
+  if (choice == table.end())
+    throw InputError("no video codec for the extension '" + ext +
+                         "'; extensions that work here: " + working_extensions(),
+                     path);
+  return &*choice;
+}
+
 }  // namespace
+
+void VideoWriter::check_extension(const std::filesystem::path& path) {
+  codec_for(path);
+}
 
 struct VideoWriter::Impl {
   cv::VideoWriter writer;
@@ -442,14 +458,7 @@ VideoWriter::VideoWriter(const std::filesystem::path& path, double fps, cv::Size
     throw InputError("cannot write '" + path.filename().string() + "': the folder is not writable",
                      folder);
 
-  const std::string ext = lower(path.extension().string());
-  const auto& table = codec_table();
-  const auto choice = std::find_if(table.begin(), table.end(),
-                                   [&](const CodecChoice& c) { return ext == c.extension; });
-  if (choice == table.end())
-    throw InputError("no video codec for the extension '" + ext +
-                         "'; extensions that work here: " + working_extensions(),
-                     path);
+  const CodecChoice* choice = codec_for(path);
   check_writable(path);
   m_tmp = reserve_partial(path);
   for (const char* fourcc : choice->fourccs) {

@@ -249,7 +249,13 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   EditResult result;
   Report& report = result.report;
   result.video = options.video.empty() ? scene.output.video : options.video;
-  result.report_path = options.report.empty() ? scene.output.report : options.report;
+  // The report: as given on the command line, else as the scene gives it, else named after the
+  // video written (the command line's, when given).
+  const bool report_from_video =
+      options.report.empty() && scene.output.report_follows_video && !options.video.empty();
+  result.report_path = !options.report.empty() ? options.report
+                       : report_from_video     ? fs::path(options.video).replace_extension(".json")
+                                               : scene.output.report;
   // ---- checks before any work: inputs readable, outputs writable and not inputs ----------
   check_input_file(scene, scene.input.video, "input.video", "video file");
   check_input_file(scene, scene.input.image, "input.image", "image file");
@@ -271,7 +277,14 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   }
   check_input_file(scene, scene.background.plate, "background.plate", "background plate");
   check_output_path(result.video, scene, "output.video", options.video.empty());
-  check_output_path(result.report_path, scene, "output.report", options.report.empty());
+  try {
+    VideoWriter::check_extension(result.video);
+  } catch (const InputError& e) {
+    if (options.video.empty()) throw scene_error(scene, "output.video", e);
+    throw;
+  }
+  check_output_path(result.report_path, scene, "output.report",
+                    options.report.empty() && !report_from_video);
   if (same_file(result.video, result.report_path)) {
     const std::string message = "the video and the report would be the same file";
     if (options.video.empty() && options.report.empty())
@@ -537,6 +550,14 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   if (!scene.background.remove.empty()) {
     try {
       masks.emplace(scene.background.remove, footage.size());
+      // Every mask the run will read, read once now, so that one that cannot be read or has
+      // another size stops the run before any output (a missing file is an empty mask): all
+      // frames when the plate is estimated from the footage, frame 0 for a single picture's
+      // inpainted plate, and the frames edited.
+      const bool estimated = scene.background.plate.empty() && scene.input.image.empty();
+      const bool picture = !scene.input.image.empty();
+      for (int t = estimated || picture ? 0 : first; t < (estimated ? frames : end); ++t)
+        masks->mask(t);
     } catch (const InputError& e) {
       throw scene_error(scene, "background.remove", e);
     }

@@ -539,6 +539,7 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     s.output.video = r.path(n["video"], "output.video");
     s.output.report = n["report"] ? r.path(n["report"], "output.report")
                                   : fs::path(s.output.video).replace_extension(".json");
+    s.output.report_follows_video = !n["report"];
   }
   return s;
 }

@@ -363,6 +363,25 @@ TEST_F(BadInput, AMissingSequenceOrMaskSequenceNamesItsKey) {
                         "no mask file for the first frame"});
 }
 
+TEST_F(BadInput, AnUnreadableOrMisSizedMaskStopsTheRunBeforeAnyFrame) {
+  // The plate is given, so no mask is read before the edit loop: the last frame's mask is
+  // still checked before the first frame is edited. Frame 1 has no mask (an empty one).
+  fs::create_directory(dir / "masks");
+  ASSERT_TRUE(cv::imwrite((dir / "masks" / "0000.png").string(), cv::Mat::zeros(48, 64, CV_8UC1)));
+  write_text(dir / "masks" / "0002.png", "not an image\n");
+  write_text(scene,
+             read_text(scene) + "background: {remove: masks/%04d.png, plate: plate_true.png}\n");
+  expect_error(edit(), {location("background:") + "key 'background.remove': ",
+                        "masks/0002.png: cannot read the mask"});
+  ASSERT_TRUE(cv::imwrite((dir / "masks" / "0002.png").string(), cv::Mat::zeros(24, 32, CV_8UC1)));
+  expect_error(edit(), {location("background:") + "key 'background.remove': ",
+                        "masks/0002.png: mask is 32x24, the footage is 64x48"});
+  // Frames 0 and 1 only: frame 2's mask is not needed, and the run goes through.
+  const CmdResult r = edit("--frames 0:2");
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_EQ(pbve::read_report(dir / "report.json").frames.size(), 2u);
+}
+
 TEST_F(BadInput, AFrameRateWithAVideoIsRefused) {
   replace(scene, "input: {video: clip.mp4}", "input: {video: clip.mp4, fps: 60}");
   expect_error(edit(), {location("input:") + "key 'input.fps': only used with input.image or "
@@ -659,6 +678,12 @@ TEST_F(BadInput, UnsupportedVideoExtension) {
   expect_error(edit("-o " + (dir / "edited.xyz").string()),
                {"edited.xyz: no video codec for the extension '.xyz'", ".mp4"},
                {dir / "edited.xyz"});
+  // Named by the scene: its line and key too.
+  replace(scene, "video: edited.mp4", "video: edited.webm");
+  expect_error(edit(),
+               {location("output:") + "key 'output.video': ",
+                "edited.webm: no video codec for the extension '.webm'"},
+               {dir / "edited.webm"});
 }
 
 // ---- pbve plot and pbve synth -----------------------------------------------------------------
@@ -697,7 +722,7 @@ TEST_F(BadInput, PlotOntoItsReportOrWithTheWrongLabels) {
   // A report that happens to have a .png name is not written over either.
   fs::copy_file(report, dir / "r.png");
   r = pbve_cmd("plot " + (dir / "r.png").string() + " -o " + (dir / "." / "r.png").string());
-  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_EQ(r.status, 1) << r.output;  // as `pbve edit` refuses its outputs
   EXPECT_NE(r.output.find("the plot would overwrite the report"), std::string::npos) << r.output;
   EXPECT_EQ(read_text(dir / "r.png"), before);
 }

@@ -163,6 +163,32 @@ TEST_F(EditCli, RefusesToOverwriteAnInput) {
   EXPECT_EQ(read(dir / "poses.txt"), before);
 }
 
+TEST_F(EditCli, TheDefaultReportFollowsTheVideoWritten) {
+  // A scene that names its report keeps it, whatever the video.
+  CmdResult r = pbve_cmd("edit " + scene.string() + " --quiet --no-control --frames 0:1 -o " +
+                         (dir / "one.mp4").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_EQ(pbve::read_report(dir / "report.json").frames.size(), 1u);
+  EXPECT_FALSE(fs::exists(dir / "one.json"));
+  // Without output.report the report is named after the video, -o's when given, so two runs
+  // to two videos keep two reports.
+  std::string text = read(scene);
+  const std::string from = "report: report.json";
+  ASSERT_NE(text.find(from), std::string::npos) << text;
+  text.replace(text.find(", " + from), from.size() + 2, "");
+  write(scene, text);
+  r = pbve_cmd("edit " + scene.string() + " --quiet --no-control --frames 0:2");
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_EQ(pbve::read_report(dir / "edited.json").frames.size(), 2u);
+  r = pbve_cmd("edit " + scene.string() + " --quiet --no-control --frames 0:3 -o " +
+               (dir / "free.mp4").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("report:       " + (dir / "free.json").string()), std::string::npos)
+      << r.output;
+  EXPECT_EQ(pbve::read_report(dir / "free.json").frames.size(), 3u);
+  EXPECT_EQ(pbve::read_report(dir / "edited.json").frames.size(), 2u);  // the first run's
+}
+
 TEST_F(EditCli, FewerPosesThanFramesNamesBothCounts) {
   std::string poses = read(dir / "poses.txt");
   poses = poses.substr(0, poses.rfind('\n', poses.size() - 2) + 1);  // drop the last pose
@@ -201,6 +227,10 @@ TEST(EditCliUsage, BadFrameRangeAndMissingSceneAreUsageErrors) {
   EXPECT_NE(r.output.find("/nonexistent/scene.yaml"), std::string::npos) << r.output;
   EXPECT_EQ(pbve_cmd("edit --help").status, 0);
   EXPECT_EQ(pbve_cmd("frobnicate").status, 2);
+  const CmdResult both = pbve_cmd("edit x.yaml --control --no-control");
+  EXPECT_EQ(both.status, 2) << both.output;
+  EXPECT_NE(both.output.find("--no-control and --control exclude each other"), std::string::npos)
+      << both.output;
 }
 
 }  // namespace

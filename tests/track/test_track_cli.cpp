@@ -84,21 +84,33 @@ TEST_F(TrackCli, MissingInitialPoseIsAUsageError) {
   EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
 }
 
+TEST_F(TrackCli, InitialPoseAndCorrespondencesTogetherAreAUsageError) {
+  std::ofstream(dir / "pairs.txt") << "0 10 10\n";
+  const CmdResult r =
+      pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " --correspondences " +
+               (dir / "pairs.txt").string() + " -o " + (dir / "tracked.txt").string());
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("--initial-pose and --correspondences exclude each other"),
+            std::string::npos)
+      << r.output;
+  EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+}
+
 TEST_F(TrackCli, OutputsThatAreInputsOrEachOtherAreRefusedBeforeAnyWork) {
   const std::string init = read_text(dir / "init.txt");
   CmdResult r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
                          (dir / "sub" / ".." / "init.txt").string());
-  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_EQ(r.status, 1) << r.output;  // as `pbve edit` refuses its outputs
   EXPECT_NE(r.output.find("would overwrite the input"), std::string::npos) << r.output;
   EXPECT_EQ(read_text(dir / "init.txt"), init);
   const std::string clip = read_text(dir / "clip.mp4");
   r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
                (dir / "a.txt").string() + " --overlay " + (dir / "clip.mp4").string());
-  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_EQ(r.status, 1) << r.output;
   EXPECT_EQ(read_text(dir / "clip.mp4"), clip);
   r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
                (dir / "a.txt").string() + " --log " + (dir / "a.txt").string());
-  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_EQ(r.status, 1) << r.output;
   EXPECT_NE(r.output.find("two outputs are the same file"), std::string::npos) << r.output;
   r = pbve_cmd(base() + "--initial-pose " + (dir / "init.txt").string() + " -o " +
                (dir / "a.txt").string() + " --log " + (dir / "no_such" / "log.csv").string());

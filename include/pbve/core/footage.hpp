@@ -62,6 +62,9 @@ class VideoWriter {
   /// Throws InputError naming the file if the folder is not writable or no codec for the
   /// extension is available (the message lists the extensions that work).
   VideoWriter(const std::filesystem::path& path, double fps, cv::Size size);
+  /// Throws InputError naming the file when no codec is known for its extension (the
+  /// constructor's check, for callers that check their outputs before any work).
+  static void check_extension(const std::filesystem::path& path);
   VideoWriter(const VideoWriter&) = delete;
   VideoWriter& operator=(const VideoWriter&) = delete;
   ~VideoWriter();

@@ -25,11 +25,13 @@ namespace pbve {
 
 /// Overrides of the scene for one run (the command line's options).
 struct EditOptions {
-  std::filesystem::path video;   ///< output video; empty = the scene's output.video
-  std::filesystem::path report;  ///< report; empty = the scene's output.report
-  std::optional<bool> control;   ///< force control on or off (--no-control)
-  int first_frame = 0;           ///< first input frame to edit (--frames A:B)
-  int end_frame = -1;            ///< one past the last input frame; -1 = all
+  std::filesystem::path video;  ///< output video; empty = the scene's output.video
+  /// report; empty = the scene's output.report, or, when the scene gives none and `video` is set,
+  /// `video`'s name with .json
+  std::filesystem::path report;
+  std::optional<bool> control;  ///< force control on or off (--no-control)
+  int first_frame = 0;          ///< first input frame to edit (--frames A:B)
+  int end_frame = -1;           ///< one past the last input frame; -1 = all
 };
 
 /// Progress of a run, reported after every frame.

@@ -128,7 +128,10 @@ struct SceneControl {
 /// `output:`.
 struct SceneOutput {
   std::filesystem::path video;
-  std::filesystem::path report;
+  std::filesystem::path report;  ///< given, or the video's name with .json
+  /// True when `output.report` was not given: the report then follows the video the run
+  /// writes (EditOptions::video's name with .json when that is set).
+  bool report_follows_video = true;
 };
 
 /// A parsed scene file with absolute paths.
