@@ -473,6 +473,15 @@ TEST_F(BadInput, ZeroStiffnessNamesTheKey) {
                         "stretch_stiffness must be positive"});
 }
 
+TEST_F(BadInput, AnIntegerParameterBeyondIntNamesTheKey) {
+  replace(scene, "  substeps: 3", "  substeps: 3\n  newton_iterations: 3e9");
+  expect_error(edit(), {location("newton_iterations:") + "key 'simulation.newton_iterations'",
+                        "expected an integer, got one too large: 3e+09"});
+  replace(scene, "newton_iterations: 3e9", "newton_iterations: 2.5");
+  expect_error(edit(), {location("newton_iterations:") + "key 'simulation.newton_iterations'",
+                        "expected an integer"});
+}
+
 TEST_F(BadInput, ZeroSubstepsNamesTheKey) {
   replace(scene, "substeps: 3", "substeps: 0");
   expect_error(edit(), {location("substeps:") + "key 'simulation.substeps': must be between 1"});

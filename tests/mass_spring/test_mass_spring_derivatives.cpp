@@ -387,6 +387,10 @@ void check_linearization(MassSpringSimulator& sim, const StepInput& in, double e
   EXPECT_LT(relative_error(lin->position_cotangent(gx), sim.position_cotangent(gx)), 1e-12);
   const Vertices tx = lin->position_tangent(jd), ts = sim.position_tangent(jd);
   EXPECT_LT((tx - ts).norm(), 1e-12 * ts.norm());
+  // vjp() has no empty form (unlike jvp()): a cotangent of another size, empty included, is an
+  // error, not a read past its end.
+  EXPECT_THROW(lin->vjp(VectorXd()), std::invalid_argument);
+  EXPECT_THROW(lin->vjp(VectorXd::Zero(ns + 1)), std::invalid_argument);
   sim.restore(s0);
 }
 

@@ -44,6 +44,27 @@ TEST(MassSpringModel, SolidsNeedAClosedSurface) {
   EXPECT_NO_THROW(MassSpringSimulator(ball, {}, Params::preset(Material::elastic)));
 }
 
+TEST(MassSpringModel, ALatticeSpacingFarTooSmallIsAnError) {
+  // 1e-12 m across a 0.2 m ball: 2e11 cells per axis, beyond int (the count is checked before
+  // it is converted), not a lattice of one cell.
+  const pbve::Mesh ball = pbve::test::icosphere(1, 0.1, {0, 0, 1});
+  for (const double spacing : {1e-9, 1e-12}) {
+    Params p = Params::preset(Material::elastic);
+    p.lattice_spacing = spacing;
+    try {
+      MassSpringSimulator sim(ball, {}, p);
+      ADD_FAILURE() << "no error for lattice_spacing " << spacing;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("lattice cells, more than 2e6; choose a larger one"),
+                std::string::npos)
+          << e.what();
+      EXPECT_NE(std::string(e.what()).find(spacing == 1e-9 ? "1e-09 m" : "1e-12 m"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+}
+
 TEST(MassSpringPhysics, FreeFallMatchesBackwardEulerBound) {
   // Backward Euler on x'' = g with substep h: v_n = n h g, x_n = x_0 + h^2 g n(n+1)/2
   // = g t^2/2 + g t h/2. The integrator's error against g t^2/2 is therefore exactly

@@ -1,6 +1,9 @@
 #include "pbve/engines.hpp"
 
 #include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
 #include <stdexcept>
 
 #include "pbve/core/error.hpp"
@@ -38,7 +41,13 @@ void store_parameter(const EngineRecipe& r, const std::string& engine, const std
   }
   if (field) *field = value;
   if (int_field) {
-    if (value != static_cast<int>(value)) fail_key(r, key, line, "expected an integer");
+    if (value != std::trunc(value)) fail_key(r, key, line, "expected an integer");
+    // (Converting a value beyond int's range would be undefined.)
+    if (!(std::abs(value) <= static_cast<double>(std::numeric_limits<int>::max()))) {
+      std::ostringstream text;
+      text << "expected an integer, got one too large: " << value;
+      fail_key(r, key, line, text.str());
+    }
     *int_field = static_cast<int>(value);
   }
 }

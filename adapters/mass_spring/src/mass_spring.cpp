@@ -1390,7 +1390,10 @@ class MassSpringSimulator::Impl::Linear final : public StepLinearization {
   StepVjp vjp(const VectorXd& d_state_after) override {
     const Model& m = *m_sim.model;
     const int S = m_sim.P().substeps, n3 = 3 * m_sim.N();
-    if (d_state_after.size() != 2 * n3) check_size(d_state_after, 2 * n3, "d_state_after");
+    if (d_state_after.size() != 2 * n3)  // (no empty form: a zero cotangent has a zero result)
+      throw std::invalid_argument("mass_spring: linearization vjp: d_state_after has " +
+                                  std::to_string(d_state_after.size()) + " entries, expected " +
+                                  std::to_string(2 * n3));
     VectorXd gx = d_state_after.head(n3), gv = d_state_after.tail(n3);
     VectorXd ga0 = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.anchors.size()));
     VectorXd gu = VectorXd::Zero(3 * static_cast<Eigen::Index>(m.num_surface));

@@ -7,6 +7,7 @@
 #include <functional>
 #include <numbers>
 #include <optional>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
@@ -332,11 +333,16 @@ Model build_model(const Mesh& mesh, const Vertices& positions, std::vector<int> 
     double s = params.lattice_spacing;
     if (s == 0.0) s = std::cbrt(volume / target_nodes);
     const Vector3d extent = hi - lo, center = 0.5 * (hi + lo);
-    Eigen::Vector3i n;
-    for (int k = 0; k < 3; ++k) n[k] = std::max(1, static_cast<int>(std::ceil(extent[k] / s)));
-    if (static_cast<double>(n[0]) * n[1] * n[2] > 2e6)
-      throw std::invalid_argument("mass_spring: parameter lattice_spacing " + std::to_string(s) +
-                                  " m gives more than 2e6 lattice cells; choose a larger one");
+    // Cell counts in double first: a tiny spacing would overflow int.
+    Vector3d cells_per_axis;
+    for (int k = 0; k < 3; ++k) cells_per_axis[k] = std::max(1.0, std::ceil(extent[k] / s));
+    if (!(cells_per_axis.prod() <= 2e6)) {
+      std::ostringstream message;
+      message << "mass_spring: parameter lattice_spacing " << s << " m gives "
+              << cells_per_axis.prod() << " lattice cells, more than 2e6; choose a larger one";
+      throw std::invalid_argument(message.str());
+    }
+    const Eigen::Vector3i n = cells_per_axis.cast<int>();
     const Vector3d origin = center - 0.5 * s * (n.cast<double>() - Vector3d::Ones());
     const int cells = n[0] * n[1] * n[2];
     std::vector<char> inside(static_cast<size_t>(cells), 0);
