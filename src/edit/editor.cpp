@@ -250,12 +250,13 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
   Report& report = result.report;
   result.video = options.video.empty() ? scene.output.video : options.video;
   // The report: as given on the command line, else as the scene gives it, else named after the
-  // video written (the command line's, when given).
-  const bool report_from_video =
-      options.report.empty() && scene.output.report_follows_video && !options.video.empty();
+  // video written (the command line's, when given; errors about that name are not the scene's).
+  const bool report_from_option_video =
+      options.report.empty() && scene.output.report.empty() && !options.video.empty();
   result.report_path = !options.report.empty() ? options.report
-                       : report_from_video     ? fs::path(options.video).replace_extension(".json")
-                                               : scene.output.report;
+                       : !scene.output.report.empty()
+                           ? scene.output.report
+                           : fs::path(result.video).replace_extension(".json");
   // ---- checks before any work: inputs readable, outputs writable and not inputs ----------
   check_input_file(scene, scene.input.video, "input.video", "video file");
   check_input_file(scene, scene.input.image, "input.image", "image file");
@@ -284,7 +285,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
     throw;
   }
   check_output_path(result.report_path, scene, "output.report",
-                    options.report.empty() && !report_from_video);
+                    options.report.empty() && !report_from_option_video);
   if (same_file(result.video, result.report_path)) {
     const std::string message = "the video and the report would be the same file";
     if (options.video.empty() && options.report.empty())

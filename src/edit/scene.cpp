@@ -537,9 +537,7 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
     r.check_map(n, "output", {"video", "report"});
     require(r, n, "video", "output");
     s.output.video = r.path(n["video"], "output.video");
-    s.output.report = n["report"] ? r.path(n["report"], "output.report")
-                                  : fs::path(s.output.video).replace_extension(".json");
-    s.output.report_follows_video = !n["report"];
+    if (n["report"]) s.output.report = r.path(n["report"], "output.report");
   }
   return s;
 }
@@ -682,7 +680,8 @@ std::string scene_to_yaml(const Scene& s) {
   e << YAML::EndMap;
   e << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   e << YAML::Key << "video" << YAML::Value << s.output.video.string();
-  e << YAML::Key << "report" << YAML::Value << s.output.report.string();
+  if (!s.output.report.empty())
+    e << YAML::Key << "report" << YAML::Value << s.output.report.string();
   e << YAML::EndMap << YAML::EndMap;
   return e.c_str();
 }

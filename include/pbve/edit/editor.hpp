@@ -26,8 +26,8 @@ namespace pbve {
 /// Overrides of the scene for one run (the command line's options).
 struct EditOptions {
   std::filesystem::path video;  ///< output video; empty = the scene's output.video
-  /// report; empty = the scene's output.report, or, when the scene gives none and `video` is set,
-  /// `video`'s name with .json
+  /// report; empty = the scene's output.report, or, when the scene gives none, the name of the
+  /// video written with .json
   std::filesystem::path report;
   std::optional<bool> control;  ///< force control on or off (--no-control)
   int first_frame = 0;          ///< first input frame to edit (--frames A:B)

@@ -128,10 +128,9 @@ struct SceneControl {
 /// `output:`.
 struct SceneOutput {
   std::filesystem::path video;
-  std::filesystem::path report;  ///< given, or the video's name with .json
-  /// True when `output.report` was not given: the report then follows the video the run
-  /// writes (EditOptions::video's name with .json when that is set).
-  bool report_follows_video = true;
+  /// Empty when the scene gives none: the report is then named after the video the run writes
+  /// (its name with .json; EditOptions::video's when that is set).
+  std::filesystem::path report;
 };
 
 /// A parsed scene file with absolute paths.
