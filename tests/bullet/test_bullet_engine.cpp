@@ -117,6 +117,8 @@ TEST(BulletEngine, InvalidValuesAreInputErrors) {
   EXPECT_NE(msg.find("linear_stiffness"), std::string::npos) << msg;
   msg = error_of("  engine: bullet\n  material: cloth\n  position_iterations: 2.5\n", grid);
   EXPECT_NE(msg.find("expected an integer"), std::string::npos) << msg;
+  msg = error_of("  engine: bullet\n  material: cloth\n  shape_matching: 0.5\n", grid);
+  EXPECT_NE(msg.find("shape_matching must be 0 for cloth"), std::string::npos) << msg;
   msg = error_of("  engine: bullet\n  material: cloth\n  single_sheet: 2\n", grid);
   EXPECT_NE(msg.find("single_sheet"), std::string::npos) << msg;
   // An open sheet has no volume to keep.

@@ -5,6 +5,7 @@
 #include <map>
 #include <numeric>
 #include <set>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -752,6 +753,14 @@ void BulletSimulator::Impl::step(const StepInput& in) {
   const Params& p = rc.params;
   if (!(in.dt > 0.0) || !std::isfinite(in.dt))
     fail("step(): dt must be positive and finite (got " + std::to_string(in.dt) + ")");
+  // Bullet skips a step shorter than its epsilon (about 2e-16 s) without a word; the anchors'
+  // velocities would then come from a division by it.
+  if (in.dt / p.substeps < 1e-12) {
+    std::ostringstream m;
+    m << "step(): a substep of " << in.dt / p.substeps << " s is too short for Bullet (dt " << in.dt
+      << " s over " << p.substeps << " substeps; at least 1e-12 s)";
+    fail(m.str());
+  }
   const ControlLayout l = layout();
   if (in.control.size() != 0 && in.control.size() != l.size())
     fail("step(): control has " + std::to_string(in.control.size()) + " entries, expected " +

@@ -92,6 +92,10 @@ void Params::validate() const {
   fraction(layer_stiffness, "layer_stiffness", true, true);
   non_negative(layer_distance, "layer_distance");
   fraction(shape_matching, "shape_matching", true, true);
+  // Shape matching pulls a solid towards its rest shape; a cloth has none to keep (a value was
+  // silently dropped before).
+  if (material == Material::cloth && shape_matching != 0.0)
+    bad("shape_matching", "0 for cloth (it applies to elastic and stiff solids)", shape_matching);
   non_negative(volume_stiffness, "volume_stiffness");
   non_negative(pressure, "pressure");
   fraction(damping, "damping", true, false);

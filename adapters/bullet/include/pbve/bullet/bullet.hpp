@@ -82,8 +82,8 @@ struct Params {
   /// thin closed board whose faces lie farther apart, that length doubled until facing vertices lie
   /// within it, at most 5% of the bounding box's diagonal).
   double layer_distance = 0.0;
-  /// Soft: shape matching, in [0, 1] (Bullet's kMT): each substep pulls every node this
-  /// fraction of the way towards the best rigid motion of the rest shape.
+  /// Soft solids: shape matching, in [0, 1] (Bullet's kMT): each substep pulls every node this
+  /// fraction of the way towards the best rigid motion of the rest shape. Must be 0 for cloth.
   double shape_matching = 0.0;
   /// Soft solids: bulk-modulus-like volume stiffness, Pa: a relative volume change dV / V0
   /// gives an inward or outward pressure of volume_stiffness * dV / V0 (Bullet's kVC =
