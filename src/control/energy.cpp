@@ -86,6 +86,7 @@ double visibility_energy(const Vertices& vertices, const Triangles& triangles,
                                 std::to_string(nf) + " entries");
   if (!(barrier.margin > 0.0) || !(barrier.clamp > 0.0 && barrier.clamp < 1.0))
     throw std::invalid_argument("visibility_energy: need margin > 0 and 0 < clamp < 1");
+  check_triangle_indices(triangles, vertices.rows(), "visibility_energy");
   if (gradient) gradient->setZero(vertices.rows(), 3);
   double e = 0.0;
   Eigen::Matrix3d g;
@@ -112,6 +113,14 @@ double visibility_energy(const Vertices& vertices, const Triangles& triangles,
 double occlusion_depth(const Vertices& vertices, const Triangles& triangles,
                        const OcclusionPair& pair, Eigen::Matrix<double, 4, 3>* grad) {
   const auto t = static_cast<Eigen::Index>(pair.triangle);
+  const Eigen::Index nv = vertices.rows();
+  auto bad_vertex = [nv](Eigen::Index v) { return v < 0 || v >= nv; };
+  if (bad_vertex(pair.vertex) || t < 0 || t >= triangles.rows() || bad_vertex(triangles(t, 0)) ||
+      bad_vertex(triangles(t, 1)) || bad_vertex(triangles(t, 2)))
+    throw std::invalid_argument("occlusion_depth: pair (vertex " + std::to_string(pair.vertex) +
+                                ", triangle " + std::to_string(pair.triangle) +
+                                ") is outside the mesh (" + std::to_string(nv) + " vertices, " +
+                                std::to_string(triangles.rows()) + " triangles)");
   const Eigen::Vector3d p = vertices.row(pair.vertex).transpose();
   const Eigen::Vector3d a = vertices.row(triangles(t, 0)).transpose();
   const Eigen::Vector3d b = vertices.row(triangles(t, 1)).transpose();
@@ -173,6 +182,7 @@ std::vector<OcclusionPair> occlusion_pairs(const Vertices& current, const Vertic
     throw std::invalid_argument("occlusion_pairs: reference has " +
                                 std::to_string(reference.rows()) + " vertices, expected " +
                                 std::to_string(current.rows()));
+  check_triangle_indices(triangles, current.rows(), "occlusion_pairs");
   const auto nv = static_cast<size_t>(current.rows());
   std::vector<char> on_observed(nv, 0), candidate(nv, 0);
   std::vector<int> observed_ids;

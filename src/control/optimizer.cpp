@@ -1009,6 +1009,10 @@ ControlEnergyEval ControlOptimizer::evaluate(Simulator& sim,
                                 " entries, expected " + std::to_string(frames * size));
   const Eigen::VectorXd uu = u.size() ? u : Eigen::VectorXd::Zero(frames * size);
   std::vector<int> blocks = active;
+  for (const int b : blocks)
+    if (b < 0 || b >= problem.layout().num_blocks)
+      throw std::invalid_argument("evaluate: active block " + std::to_string(b) + " outside [0, " +
+                                  std::to_string(problem.layout().num_blocks) + ")");
   if (blocks.empty()) {
     const std::vector<char> is_free = free_blocks(sim, problem.layout());
     for (int b = 0; b < problem.layout().num_blocks; ++b)

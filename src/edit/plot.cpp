@@ -59,9 +59,12 @@ void axes(cv::Mat& img, const Panel& p, const std::string& title, const std::str
   };
   if (p.log_y) {
     // Whole decades, every one up to 6 of them.
-    const double every = std::ceil((p.y1 - p.y0) / 6.0);
-    for (double d = p.y0; d <= p.y1 + 1e-9; d += every)
+    const double every = std::max(1.0, std::ceil((p.y1 - p.y0) / 6.0));
+    for (int k = 0; k <= 7; ++k) {
+      const double d = p.y0 + k * every;
+      if (d > p.y1 + 1e-9) break;
       y_tick((d - p.y0) / (p.y1 - p.y0), tick_label(std::pow(10.0, d)));
+    }
   } else {
     for (const double v : axis_ticks(p.y0, p.y1, 6))
       y_tick((v - p.y0) / (p.y1 - p.y0), tick_label(v));
@@ -81,10 +84,15 @@ void axes(cv::Mat& img, const Panel& p, const std::string& title, const std::str
 
 void polyline(cv::Mat& img, const Panel& p, const std::vector<FrameRecord>& frames,
               double FrameRecord::*field, const cv::Scalar& colour, bool dashed) {
+  // A NaN value (a frame whose figure could not be computed) leaves a gap in the line.
   std::vector<cv::Point> pts;
-  for (const FrameRecord& f : frames) pts.push_back(p.map(f.index, f.*field));
+  std::vector<char> known;
+  for (const FrameRecord& f : frames) {
+    known.push_back(!std::isnan(f.*field));
+    pts.push_back(known.back() ? p.map(f.index, f.*field) : cv::Point());
+  }
   for (size_t i = 1; i < pts.size(); ++i) {
-    if (dashed && (i / 3) % 2) continue;
+    if ((dashed && (i / 3) % 2) || !known[i - 1] || !known[i]) continue;
     cv::line(img, pts[i - 1], pts[i], colour, 2, cv::LINE_AA);
   }
 }
@@ -102,14 +110,15 @@ std::string tick_label(double v) {
 
 std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step) {
   std::vector<double> ticks;
-  if (!(hi >= lo) || !std::isfinite(lo) || !std::isfinite(hi)) return ticks;
+  if (!(hi >= lo) || !std::isfinite(hi - lo) || !std::isfinite(min_step)) return ticks;
   if (hi == lo) return {lo};
   const double step = round_step(hi - lo, max_intervals, min_step);
   const double eps = 1e-9 * step;
   const double k0 = std::ceil(lo / step - 1e-9);
   // At most max_intervals + 1 ticks by construction; the bound also stops a step too small to
   // advance k (a range far from zero).
-  for (int i = 0; i <= std::max(max_intervals, 1) + 1; ++i) {
+  const long long last = static_cast<long long>(std::max(max_intervals, 1)) + 1;
+  for (long long i = 0; i <= last; ++i) {
     const double v = (k0 + i) * step;
     if (v > hi + eps) break;
     ticks.push_back(v == 0.0 ? 0.0 : v);  // no -0
@@ -129,8 +138,10 @@ cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::
     for (const FrameRecord& f : r.frames) {
       x0 = std::min(x0, static_cast<double>(f.index));
       x1 = std::max(x1, static_cast<double>(f.index));
-      vmax = std::max(vmax, f.violation_pct);
+      // The axes from the finite values (an infinite force is drawn at the top).
+      if (std::isfinite(f.violation_pct)) vmax = std::max(vmax, f.violation_pct);
       for (double v : {f.control_force, f.physical_force}) {
+        if (!std::isfinite(v)) continue;
         if (v > 0) fmin = std::min(fmin, v);
         fmax = std::max(fmax, v);
       }
@@ -144,12 +155,9 @@ cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::
   const double vtop = std::max(1.0, vmax), vstep = round_step(vtop, 6, 0.0);
   Panel viol{{left, top, width - left - right, ph}, x0,   x1, 0.0,
              vstep * std::ceil(vtop / vstep),       false};
-  Panel force{{left, top + ph + gap, width - left - right, ph},
-              x0,
-              x1,
-              std::floor(std::log10(fmin)),
-              std::ceil(std::log10(fmax * 1.01)),
-              true};
+  Panel force{
+      {left, top + ph + gap, width - left - right, ph}, x0,  x1, std::floor(std::log10(fmin)),
+      std::ceil(std::log10(fmax) + std::log10(1.01)),   true};
   if (force.y1 <= force.y0) force.y1 = force.y0 + 1;
   axes(img, viol, "Area of violating triangles (% of visible object area) per frame", "%");
   axes(img, force, "Control force (solid) and physical force (dashed) per frame", "N (log)");

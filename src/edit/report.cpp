@@ -4,6 +4,7 @@
 #include <cerrno>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include <yaml-cpp/yaml.h>
@@ -183,6 +184,8 @@ class ReportFields {
                 double fallback) const {
     const json* v = field(o, where, name, required);
     if (!v) return fallback;
+    // JSON has no NaN or infinity: write_report() writes a figure that is not finite as null.
+    if (v->is_null()) return std::numeric_limits<double>::quiet_NaN();
     if (!v->is_number()) fail(where + name, std::string("expected a number, found ") + kind(*v));
     return v->get<double>();
   }

@@ -88,7 +88,8 @@ BackgroundPlate estimate_plate(int frame_count, const std::function<cv::Mat(int)
   const int width = camera.width, height = camera.height;
   const size_t pixels = static_cast<size_t>(width) * height;
   const int K = options.samples_per_pixel;
-  const int step = (frame_count + options.max_frames - 1) / options.max_frames;
+  // ceil(frame_count / max_frames), without overflow for a max_frames up to INT_MAX.
+  const int step = frame_count > 0 ? 1 + (frame_count - 1) / options.max_frames : 1;
   // Reservoir: K background colours per pixel (pixel-major), and how many frames showed the
   // background at each pixel so far.
   std::vector<std::uint8_t> samples(pixels * K * 3);

@@ -169,6 +169,7 @@ cv::Rect projected_bounds(const Vertices& cam_vertices, const Camera& camera, in
 }
 
 Eigen::Vector3d surface_centroid(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "surface_centroid");
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   double area = 0.0;
   for (Eigen::Index j = 0; j < triangles.rows(); ++j) {
@@ -204,6 +205,12 @@ void silhouette_mask(RayScene& scene, const Vertices& cam_vertices, const Camera
     std::uint8_t* row = mask.ptr<std::uint8_t>(r.y + y) + r.x;
     const std::int32_t* tri = hits.triangle.data() + static_cast<size_t>(y) * hits.width;
     for (int x = 0; x < r.width; ++x) row[x] = tri[x] >= 0 ? 255 : 0;
+  }
+  // Dilating by the image diagonal or more covers the whole image (a kernel that large would
+  // take minutes, and its rectangle could overflow int).
+  if (static_cast<double>(dilate_px) >= std::hypot(camera.width, camera.height)) {
+    if (cv::countNonZero(mask) > 0) mask.setTo(255);
+    return;
   }
   if (dilate_px > 0) {
     const cv::Rect grown = cv::Rect(r.x - dilate_px, r.y - dilate_px, r.width + 2 * dilate_px,
@@ -538,8 +545,13 @@ void Renderer::Impl::render(const cv::Mat& input, const Vertices& aligned,
   //    enlarged one without casting it. The exact cast is the fallback for a mesh reaching
   //    behind the camera.
   {
+    // Dilation by the largest displacement is exact enough for the displacements an enlargement
+    // of about 1% gives (a few pixels); a vertex near the camera plane can move hundreds of
+    // pixels, and a kernel that large costs seconds: the exact cast then.
+    constexpr double max_reach_px = 32.0;
     const double reach = enlargement_px(aligned);
-    if (std::isfinite(reach)) {
+    if (std::isfinite(reach) && reach <= max_reach_px &&
+        static_cast<double>(options.dilate_px) < std::hypot(camera.width, camera.height)) {
       removal.setTo(0);
       for (int y = 0; y < aligned_rect.height; ++y) {
         std::uint8_t* row = removal.ptr<std::uint8_t>(aligned_rect.y + y) + aligned_rect.x;

@@ -1142,6 +1142,7 @@ Pose pose_from_correspondence_file(const std::filesystem::path& path, const Mesh
 
 void draw_mesh_edges(cv::Mat& image, const Mesh& mesh, const Camera& camera, const Pose& pose,
                      const cv::Scalar& color, double crease_deg) {
+  check_triangle_indices(mesh.triangles, mesh.num_vertices(), "draw_mesh_edges");
   const Vertices v = pose.apply(mesh.vertices);
   const int nf = mesh.num_triangles();
   std::vector<Vector3d> normal(static_cast<size_t>(nf));

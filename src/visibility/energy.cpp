@@ -35,6 +35,7 @@ ExactVisibilityEnergy visibility_energy_exact(const std::vector<std::uint8_t>& o
   const Eigen::Index nf = simulated.num_triangles();
   check_size(observed_in_input.size(), nf, "observed_in_input");
   if (!interior.empty()) check_size(interior.size(), nf, "interior");
+  check_size(static_cast<size_t>(simulated.projected_area_px.size()), nf, "projected_area_px");
   ExactVisibilityEnergy e;
   for (Eigen::Index j = 0; j < nf; ++j) {
     const size_t i = static_cast<size_t>(j);
@@ -109,6 +110,7 @@ SmoothVisibilityEnergy visibility_energy_smooth(const Vertices& vertices,
                                                 const Eigen::VectorXd& weights,
                                                 const SmoothVisibilityOptions& options) {
   const Eigen::Index nf = triangles.rows();
+  check_triangle_indices(triangles, vertices.rows(), "visibility_energy_smooth");
   check_size(constrained.size(), nf, "constrained");
   check_size(static_cast<size_t>(weights.size()), nf, "weights");
   if (!(options.margin > 0.0)) throw InputError("smooth visibility margin must be positive");
@@ -140,6 +142,7 @@ SmoothVisibilityEnergy visibility_energy_smooth(const Vertices& vertices,
 }
 
 Eigen::VectorXd area_weights(const Vertices& vertices, const Triangles& triangles) {
+  check_triangle_indices(triangles, vertices.rows(), "area_weights");
   Eigen::VectorXd w(triangles.rows());
   for (Eigen::Index j = 0; j < triangles.rows(); ++j) {
     const Eigen::Vector3d a = vertices.row(triangles(j, 0)).transpose();

@@ -1,5 +1,6 @@
 #include "pbve/visibility/ray_scene.hpp"
 
+#include <limits>
 #include <mutex>
 #include <stdexcept>
 #include <string>
@@ -261,6 +262,15 @@ std::vector<std::uint8_t> RayScene::occluded_from_origin(
 PrimaryHits RayScene::cast_primary(const Camera& camera, int supersample) const {
   if (supersample < 1)
     throw InputError("supersample must be at least 1, got " + std::to_string(supersample));
+  detail::check_ray_camera(camera);
+  const long long samples = static_cast<long long>(camera.width) * supersample *
+                            static_cast<long long>(camera.height) * supersample;
+  if (static_cast<long long>(camera.width) * supersample > std::numeric_limits<int>::max() ||
+      static_cast<long long>(camera.height) * supersample > std::numeric_limits<int>::max() ||
+      samples > (1LL << 34))
+    throw InputError("supersample " + std::to_string(supersample) + " of a " +
+                     std::to_string(camera.width) + "x" + std::to_string(camera.height) +
+                     " image gives too many rays");
   PrimaryHits hits;
   hits.supersample = supersample;
   hits.width = camera.width * supersample;

@@ -10,6 +10,7 @@
 #include <tbb/blocked_range2d.h>
 #include <tbb/parallel_for.h>
 
+#include "pbve/core/error.hpp"
 #include "pbve/visibility/ray_scene.hpp"
 
 namespace pbve {
@@ -33,6 +34,18 @@ struct RayScene::Impl {
 };
 
 namespace detail {
+
+/// Throws InputError unless the camera's rays are finite: positive finite focal lengths, a
+/// finite principal point (which may lie outside the image: a camera for a part of it) and a
+/// positive image size. A non-finite ray direction aborts Embree (its assertions are on).
+inline void check_ray_camera(const Camera& camera) {
+  if (!(camera.fx > 0.0) || !(camera.fy > 0.0) || !std::isfinite(camera.fx) ||
+      !std::isfinite(camera.fy) || !std::isfinite(camera.cx) || !std::isfinite(camera.cy) ||
+      camera.width <= 0 || camera.height <= 0)
+    throw InputError(
+        "the camera needs positive finite focal lengths, a finite principal point "
+        "and a positive image size");
+}
 
 /// Side length (in samples) of the square tiles processed as one parallel task.
 inline constexpr int primary_tile = 16;

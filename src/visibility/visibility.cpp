@@ -69,6 +69,7 @@ void visibility_impl(const RayScene::Impl* impl, const Vertices& vertices,
                      const Triangles& triangles, const Camera& camera,
                      const VisibilityOptions& options, TriangleVisibility& result) {
   check_options(options);
+  detail::check_ray_camera(camera);
   const Eigen::Index nf = triangles.rows();
   // Every entry is written below; resizing to the same size keeps the buffers.
   result.visible.resize(static_cast<size_t>(nf));
@@ -210,6 +211,7 @@ Eigen::VectorXd facing_values(const Vertices& vertices, const Triangles& triangl
 
 Eigen::VectorXd projected_areas_px(const Vertices& vertices, const Triangles& triangles,
                                    const Camera& camera) {
+  check_triangle_indices(triangles, vertices.rows(), "projected_areas_px");
   Eigen::VectorXd a(triangles.rows());
   for (Eigen::Index j = 0; j < triangles.rows(); ++j)
     a[j] = triangle_geometry(vertices, triangles, j, &camera).area_px;

@@ -76,6 +76,28 @@ TEST(ControlEnergy, BarrierIsC1AndZeroBeyondTheMargin) {
   }
 }
 
+TEST(ControlEnergy, IndicesOutsideTheMeshAreErrorsNotReads) {
+  const Vertices x = random_vertices(4, 7);
+  Triangles t(2, 3);
+  t << 0, 1, 2, 1, 3, 50;
+  const std::vector<std::uint8_t> pen(2, 1), obs(2, 0);
+  const Eigen::VectorXd w = Eigen::VectorXd::Constant(2, 0.5);
+  EXPECT_THROW(visibility_energy(x, t, pen, w, VisibilityBarrier{}, nullptr),
+               std::invalid_argument);
+  EXPECT_THROW(occlusion_pairs(x, x, t, pen, obs, 0.01), std::invalid_argument);
+  t(1, 2) = 2;
+  OcclusionPair pair;
+  pair.vertex = 100000000;
+  pair.triangle = 0;
+  pair.rest_depth = 0.01;
+  EXPECT_THROW(occlusion_depth(x, t, pair, nullptr), std::invalid_argument);
+  pair.vertex = 3;
+  pair.triangle = 2;
+  EXPECT_THROW(occlusion_energy(x, t, {pair}, VisibilityBarrier{}, nullptr), std::invalid_argument);
+  pair.triangle = 0;
+  EXPECT_NO_THROW(occlusion_depth(x, t, pair, nullptr));
+}
+
 TEST(ControlEnergy, VisibilityEnergyGradientMatchesCentralDifferences) {
   // A random crumpled sheet: facing values spread over [-1, 1], so triangles sit on the
   // log branch, on the quadratic extension and beyond the margin.

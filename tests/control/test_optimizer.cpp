@@ -65,6 +65,16 @@ double relative_error(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
   return (a - b).norm() / std::max(a.norm(), b.norm());
 }
 
+TEST(ControlOptimizer, ActiveBlocksOutsideTheLayoutAreErrors) {
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptimizer opt(sheet_triangles(), {}, ControlOptions{});
+  const auto f = frames(1);
+  const int blocks = sim.control_layout().num_blocks;
+  for (const int b : {-1, blocks, 1000000})
+    EXPECT_THROW(opt.evaluate(sim, f, {}, GradientMode::central, {b}), std::invalid_argument) << b;
+  EXPECT_NO_THROW(opt.evaluate(sim, f, {}, GradientMode::central, {blocks - 1}));
+}
+
 TEST(ControlOptimizer, AdjointGradientMatchesCentralDifferences) {
   for (int window : {1, 3}) {
     test::ParticleSimulator sim(sheet(kEdgeOn), {0});

@@ -3,6 +3,9 @@
 #include <fstream>
 #include <iterator>
 
+#include <cmath>
+#include <limits>
+
 #include <gtest/gtest.h>
 
 #include "pbve/core/error.hpp"
@@ -63,6 +66,21 @@ TEST(Report, JsonRoundTrip) {
   EXPECT_FALSE(b.complete);
   EXPECT_EQ(b.stopped_reason, "interrupted");
   EXPECT_EQ(b.warnings, r.warnings);
+}
+
+TEST(Report, AFigureThatIsNotFiniteComesBackAsNaN) {
+  // JSON has no NaN: write_report() writes null, read_report() reads it back as NaN.
+  pbve::test::TempDir dir;
+  pbve::Report r;
+  r.frames = {frame(0, 1.5, 0.2, 2.0)};
+  r.frames[0].violation_pct = std::numeric_limits<double>::quiet_NaN();
+  r.frames[0].physical_force = std::numeric_limits<double>::infinity();
+  pbve::write_report(r, dir / "r.json");
+  const pbve::Report b = pbve::read_report(dir / "r.json");
+  ASSERT_EQ(b.frames.size(), 1u);
+  EXPECT_TRUE(std::isnan(b.frames[0].violation_pct));
+  EXPECT_TRUE(std::isnan(b.frames[0].physical_force));
+  EXPECT_DOUBLE_EQ(b.frames[0].control_force, 0.2);
 }
 
 TEST(Report, ReadingGarbageNamesTheFile) {
@@ -138,6 +156,23 @@ TEST(Plot, DrawsEachRunInItsColour) {
     }
   EXPECT_GT(first, 100);
   EXPECT_GT(second, 100);
+}
+
+TEST(Plot, ForcesThatAreNotFiniteLeaveGapsNotAHang) {
+  // An infinite force once made the decade loop of the force axis endless.
+  pbve::Report a;
+  for (int i = 0; i < 10; ++i) a.frames.push_back(frame(i, 1.0, 0.1 * (1 + i), 2.0));
+  a.frames[3].control_force = std::numeric_limits<double>::infinity();
+  a.frames[4].physical_force = std::numeric_limits<double>::quiet_NaN();
+  a.frames[5].violation_pct = std::numeric_limits<double>::quiet_NaN();
+  const cv::Mat img = pbve::plot_reports({a}, {"run"}, 900, 600);
+  ASSERT_EQ(img.cols, 900);
+  int drawn = 0;
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) drawn += img.at<cv::Vec3b>(y, x) == cv::Vec3b(180, 110, 30);
+  EXPECT_GT(drawn, 100);
+  EXPECT_TRUE(pbve::axis_ticks(-1e308, 1e308, 6).empty());
+  EXPECT_EQ(pbve::axis_ticks(0.0, 10.0, std::numeric_limits<int>::max(), 1.0).size(), 11u);
 }
 
 TEST(Plot, ASizeWithoutRoomForThePanelsIsRefused) {

@@ -3,6 +3,8 @@
 
 #include "pbve/render/plate.hpp"
 
+#include <limits>
+
 #include <gtest/gtest.h>
 
 #include <opencv2/imgcodecs.hpp>
@@ -119,6 +121,24 @@ TEST(Plate, SubsampledFramesAndLostPoses) {
   EXPECT_EQ(plate.frames_used, 14);  // frames 0, 2, ..., 28 without the lost frame 4
   EXPECT_EQ(test::mean_abs_diff(plate.image, clip.background, plate.observed), 0.0);
   EXPECT_GE(test::psnr(plate.image, clip.background, clip.uncovered_once()), 30.0);
+}
+
+TEST(Plate, MaxFramesAsLargeAsIntUsesEveryFrame) {
+  // "No limit" as INT_MAX: the subsampling step is 1 (its rounding once overflowed to 0, and
+  // the frame loop never advanced).
+  Clip clip(6);
+  PlateOptions options;
+  options.max_frames = std::numeric_limits<int>::max();
+  int reads = 0;
+  const BackgroundPlate plate = estimate_plate(
+      static_cast<int>(clip.frames.size()),
+      [&](int i) {
+        ++reads;
+        return clip.frames[static_cast<size_t>(i)];
+      },
+      clip.poses, clip.mesh, clip.camera, options);
+  EXPECT_EQ(plate.frames_used, 6);
+  EXPECT_EQ(reads, 6);
 }
 
 // Footage on disk (an image sequence) and masks on disk (`background.remove` pattern).

@@ -98,6 +98,22 @@ Shape plates_scene() {
   return concatenate(back, front);
 }
 
+TEST(Visibility, ACameraThatIsNotValidIsAnErrorNotAnAbort) {
+  // A zero or non-finite focal length gives rays Embree aborts the process on.
+  const Shape s = plates_scene();
+  RayScene scene(s.vertices, s.triangles);
+  for (const double fx : {0.0, std::nan("")}) {
+    Camera camera;
+    camera.fx = fx;
+    EXPECT_THROW(compute_visibility(scene, camera), InputError) << fx;
+    EXPECT_THROW(scene.cast_primary(camera, 1), InputError) << fx;
+  }
+  EXPECT_THROW(scene.cast_primary(Camera{}, 1 << 20), InputError);  // too many rays
+  Triangles bad = s.triangles;
+  bad(0, 2) = 100000000;
+  EXPECT_THROW(projected_areas_px(s.vertices, bad, Camera{}), std::invalid_argument);
+}
+
 TEST(Visibility, PlateBehindPlateIsHiddenWhereTheyOverlap) {
   const Camera camera;
   const Shape scene_shape = plates_scene();

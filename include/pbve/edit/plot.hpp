@@ -21,7 +21,7 @@ cv::Mat plot_reports(const std::vector<Report>& reports, const std::vector<std::
 
 /// Tick values of a linear axis over [lo, hi]: the multiples of a round step (1, 2 or 5 times a
 /// power of ten, at least `min_step`) that lie in it, at most `max_intervals` steps apart
-/// end to end. Empty when hi < lo.
+/// end to end. Empty when hi < lo, or when hi - lo or min_step is not finite.
 std::vector<double> axis_ticks(double lo, double hi, int max_intervals, double min_step = 0.0);
 
 /// The text of a value axis's tick at v: up to four significant digits ("0.25", "40", "1000"),
