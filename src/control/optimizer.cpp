@@ -448,6 +448,7 @@ class WindowProblem {
         add(v);
       for (int r = 0, begin = 0; r < rings; ++r) {
         const int end = static_cast<int>(ball.size());
+        if (end == begin) break;  // the ball stopped growing: more rings add nothing
         for (int q = begin; q < end; ++q)
           if (const auto v = static_cast<size_t>(ball[static_cast<size_t>(q)]);
               v < adjacency.size())
@@ -791,44 +792,6 @@ GradientMode resolve_gradient(const Simulator& sim, GradientMode mode) {
   return GradientMode::central;
 }
 
-const char* to_string(ControlStatus status) {
-  switch (status) {
-    case ControlStatus::converged:
-      return "converged";
-    case ControlStatus::iteration_limit:
-      return "iteration_limit";
-    case ControlStatus::failed:
-      return "failed";
-    case ControlStatus::cancelled:
-      return "cancelled";
-  }
-  return "unknown";
-}
-
-const char* to_string(ControlSolver solver) {
-  switch (solver) {
-    case ControlSolver::slsqp:
-      return "slsqp";
-    case ControlSolver::mma:
-      return "mma";
-    case ControlSolver::lbfgs:
-      return "lbfgs";
-    case ControlSolver::cobyla:
-      return "cobyla";
-    case ControlSolver::ipopt:
-      return "ipopt";
-  }
-  return "unknown";
-}
-
-ControlSolver parse_control_solver(const std::string& name) {
-  for (ControlSolver s : {ControlSolver::slsqp, ControlSolver::mma, ControlSolver::lbfgs,
-                          ControlSolver::cobyla, ControlSolver::ipopt})
-    if (name == to_string(s)) return s;
-  throw std::invalid_argument("unknown solver '" + name +
-                              "' (expected slsqp, mma, lbfgs, cobyla or ipopt)");
-}
-
 ControlOptimizer::ControlOptimizer(Triangles triangles, std::vector<std::uint8_t> interior,
                                    ControlOptions options)
     : m_triangles(std::move(triangles)), m_interior(std::move(interior)) {
@@ -842,24 +805,7 @@ ControlOptimizer::ControlOptimizer(Triangles triangles, std::vector<std::uint8_t
 }
 
 void ControlOptimizer::set_options(const ControlOptions& options) {
-  if (options.window < 1) throw std::invalid_argument("control window must be >= 1");
-  if (!(options.fd_step > 0.0)) throw std::invalid_argument("fd_step must be positive");
-  if (options.force_bound < 0.0) throw std::invalid_argument("force_bound must be >= 0");
-  if (!(options.force_smoothing > 0.0))
-    throw std::invalid_argument("force_smoothing must be positive");
-  if (!(options.barrier.margin > 0.0) ||
-      !(options.barrier.clamp > 0.0 && options.barrier.clamp < 1.0))
-    throw std::invalid_argument("barrier needs margin > 0 and 0 < clamp < 1");
-  if (options.max_evaluations < 1) throw std::invalid_argument("max_evaluations must be >= 1");
-  if (!(options.occlusion_margin >= 0.0 && options.occlusion_margin < 1.0))
-    throw std::invalid_argument("occlusion_margin must be in [0, 1)");
-  if (options.difference_rings < 0) throw std::invalid_argument("difference_rings must be >= 0");
-  if (options.max_linearizations < 1)
-    throw std::invalid_argument("max_linearizations must be >= 1");
-  if (!(options.linearized_ftol_initial >= 0.0 && options.linearized_ftol_initial < 1.0))
-    throw std::invalid_argument("linearized_ftol_initial must be in [0, 1)");
-  if (options.constraint == ConstraintMode::hard && options.solver == ControlSolver::lbfgs)
-    throw std::invalid_argument("the hard-constraint mode needs slsqp, mma, cobyla or ipopt");
+  options.validate();
   m_options = options;
 }
 
@@ -917,6 +863,7 @@ std::vector<int> ControlOptimizer::select_blocks(Simulator& sim,
     for (int v = 0; v < nvtx; ++v)
       if (in[static_cast<size_t>(v)] && static_cast<size_t>(v) < m_adjacency.size())
         for (int w : m_adjacency[static_cast<size_t>(v)]) next[static_cast<size_t>(w)] = 1;
+    if (next == in) break;  // the rings stopped growing: more of them add nothing
     in.swap(next);
   }
   std::vector<char> chosen(static_cast<size_t>(layout.num_blocks), 0);

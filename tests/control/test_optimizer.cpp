@@ -3,11 +3,16 @@
 // active set, hooks and bad input.
 
 #include <cmath>
+#include <functional>
+#include <limits>
 #include <numbers>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
 #include "pbve/control/optimizer.hpp"
+#include "pbve/core/error.hpp"
 #include "sim/particle_simulator.hpp"
 
 namespace pbve {
@@ -373,6 +378,118 @@ TEST(ControlOptimizer, HardConstraintModeForComparison) {
   EXPECT_LT(r.visibility_energy, 0.05 * base);
   o.solver = ControlSolver::lbfgs;
   EXPECT_THROW(opt.set_options(o), std::invalid_argument);
+}
+
+// Every field's invalid values are refused by name, with the value, where the optimizer takes
+// options (constructor and set_options(), which then keeps the options it had).
+TEST(ControlOptions, InvalidValuesNameTheFieldAndTheValue) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  struct Case {
+    const char* field;
+    std::function<void(ControlOptions&)> set;
+    const char* value;  // as the message writes it
+  };
+  const std::vector<Case> cases = {
+      {"weights.visibility", [&](ControlOptions& o) { o.weights.visibility = -1.0; }, "-1"},
+      {"weights.force", [&](ControlOptions& o) { o.weights.force = nan; }, "nan"},
+      {"weights.temporal", [&](ControlOptions& o) { o.weights.temporal = inf; }, "inf"},
+      {"barrier.margin", [&](ControlOptions& o) { o.barrier.margin = 0.0; }, "0"},
+      {"barrier.margin", [&](ControlOptions& o) { o.barrier.margin = inf; }, "inf"},
+      {"barrier.clamp", [&](ControlOptions& o) { o.barrier.clamp = 1.0; }, "1"},
+      {"solver", [&](ControlOptions& o) { o.solver = static_cast<ControlSolver>(7); }, "7"},
+      {"gradient", [&](ControlOptions& o) { o.gradient = static_cast<GradientMode>(-1); }, "-1"},
+      {"constraint", [&](ControlOptions& o) { o.constraint = static_cast<ConstraintMode>(2); },
+       "2"},
+      {"initial_guess", [&](ControlOptions& o) { o.initial_guess = static_cast<InitialGuess>(5); },
+       "5"},
+      {"window", [&](ControlOptions& o) { o.window = 0; }, "0"},
+      {"active_set", [&](ControlOptions& o) { o.active_set = static_cast<ActiveSet>(3); }, "3"},
+      {"active_band", [&](ControlOptions& o) { o.active_band = nan; }, "nan"},
+      {"active_rings", [&](ControlOptions& o) { o.active_rings = -1; }, "-1"},
+      {"clusters", [&](ControlOptions& o) { o.clusters = -4; }, "-4"},
+      {"occlusion_margin", [&](ControlOptions& o) { o.occlusion_margin = 1.0; }, "1"},
+      {"force_bound", [&](ControlOptions& o) { o.force_bound = nan; }, "nan"},
+      {"force_bound", [&](ControlOptions& o) { o.force_bound = -0.5; }, "-0.5"},
+      {"torque_arm", [&](ControlOptions& o) { o.torque_arm = 0.0; }, "0"},
+      {"torque_arm", [&](ControlOptions& o) { o.torque_arm = -0.1; }, "-0.1"},
+      {"force_smoothing", [&](ControlOptions& o) { o.force_smoothing = inf; }, "inf"},
+      {"fd_step", [&](ControlOptions& o) { o.fd_step = inf; }, "inf"},
+      {"fd_step", [&](ControlOptions& o) { o.fd_step = 0.0; }, "0"},
+      {"difference_rings", [&](ControlOptions& o) { o.difference_rings = -2; }, "-2"},
+      {"max_linearizations", [&](ControlOptions& o) { o.max_linearizations = 0; }, "0"},
+      {"linearized_ftol_initial", [&](ControlOptions& o) { o.linearized_ftol_initial = nan; },
+       "nan"},
+      {"model_ftol_rel", [&](ControlOptions& o) { o.model_ftol_rel = -1e-4; }, "-0.0001"},
+      {"max_evaluations", [&](ControlOptions& o) { o.max_evaluations = 0; }, "0"},
+      {"ftol_rel", [&](ControlOptions& o) { o.ftol_rel = nan; }, "nan"},
+      {"xtol_abs", [&](ControlOptions& o) { o.xtol_abs = -1.0; }, "-1"},
+      {"time_limit_s", [&](ControlOptions& o) { o.time_limit_s = -1.0; }, "-1"},
+      {"time_limit_s", [&](ControlOptions& o) { o.time_limit_s = inf; }, "inf"},
+      {"solver",
+       [&](ControlOptions& o) {
+         o.constraint = ConstraintMode::hard;
+         o.solver = ControlSolver::lbfgs;
+       },
+       "lbfgs"},
+  };
+  ControlOptimizer opt(sheet_triangles());
+  ControlOptions kept;
+  kept.max_evaluations = 17;
+  opt.set_options(kept);
+  for (const Case& c : cases) {
+    ControlOptions o;
+    c.set(o);
+    const std::string key = std::string("ControlOptions::") + c.field;
+    try {
+      o.validate();
+      ADD_FAILURE() << key << " = " << c.value << " accepted";
+    } catch (const InputError& e) {
+      const std::string m = e.what();
+      EXPECT_EQ(e.key(), key) << m;
+      EXPECT_NE(m.find(key + ": "), std::string::npos) << m;
+      EXPECT_NE(m.find(c.value), std::string::npos) << m;
+    }
+    EXPECT_THROW(ControlOptimizer(sheet_triangles(), {}, o), InputError) << key;
+    EXPECT_THROW(opt.set_options(o), InputError) << key;
+    EXPECT_EQ(opt.options().max_evaluations, 17) << key;  // the options it had are kept
+  }
+}
+
+// Values at the edges of the documented ranges are taken, and the optimizer runs with them.
+TEST(ControlOptions, DocumentedEdgeValuesAreAccepted) {
+  ControlOptions o;
+  o.weights = {0.0, 0.0, 0.0};
+  o.active_band = -2.0;  // no triangle at risk
+  o.active_rings = 0;
+  o.occlusion_margin = 0.0;
+  o.force_bound = 0.0;
+  o.linearized_ftol_initial = 0.0;
+  o.model_ftol_rel = 0.0;
+  o.ftol_rel = 0.0;
+  o.xtol_abs = 0.0;
+  o.time_limit_s = 0.0;
+  o.difference_rings = 0;
+  EXPECT_NO_THROW(o.validate());
+  o.active_band = 2.0;  // every must-stay-hidden triangle at risk
+  o.weights.visibility = 1.0;
+  EXPECT_NO_THROW(o.validate());
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  EXPECT_NE(opt.step(sim, frames(1)).status, ControlStatus::failed);
+}
+
+// More rings than the mesh has reach stop growing: every free block, at once.
+TEST(ControlOptimizer, RingCountsBeyondTheMeshStopGrowing) {
+  test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+  ControlOptions o;
+  o.active_rings = std::numeric_limits<int>::max();
+  o.difference_rings = std::numeric_limits<int>::max();
+  o.gradient = GradientMode::compressed;
+  ControlOptimizer opt(sheet_triangles(), {}, o);
+  EXPECT_EQ(opt.active_blocks(sim, frames(1)).size(), static_cast<size_t>(kN * kN - 1));
+  const ControlEnergyEval e = opt.evaluate(sim, frames(1), {}, GradientMode::compressed);
+  EXPECT_TRUE(e.gradient.allFinite());
 }
 
 TEST(ControlOptimizer, RejectsBadInput) {

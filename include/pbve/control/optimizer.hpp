@@ -111,7 +111,7 @@ const char* to_string(ControlStatus status);
 const char* to_string(ControlSolver solver);
 ControlSolver parse_control_solver(const std::string& name);
 
-/// Weights of the energy terms (the scene file's control.weights).
+/// Weights of the energy terms (the scene file's control.weights); each finite and >= 0.
 struct ControlWeights {
   double visibility = 1.0;  ///< lC (EC is dimensionless)
   double force = 1e-3;      ///< lF, per newton of smoothed control force magnitude
@@ -120,20 +120,30 @@ struct ControlWeights {
 
 /// Settings of ControlOptimizer. Defaults follow the paper where it says something.
 struct ControlOptions {
+  /// Throws InputError naming the first invalid field (key() "ControlOptions::FIELD", e.g.
+  /// "ControlOptions::weights.force") and its value: NaN or infinite numbers, negative weights
+  /// and tolerances, a barrier margin or clamp outside (0, 1), fd_step, torque_arm or
+  /// force_smoothing not positive, counts below their minimum, enumerators out of range, and
+  /// the hard-constraint mode with lbfgs. The ranges are given with each field below.
+  /// ControlOptimizer calls it wherever it takes options.
+  void validate() const;
+
   ControlWeights weights;
+  /// The visibility barrier: margin (a cosine) and clamp each in (0, 1).
   VisibilityBarrier barrier;
   ControlSolver solver = ControlSolver::slsqp;
   GradientMode gradient = GradientMode::automatic;
   ConstraintMode constraint = ConstraintMode::soft;
   InitialGuess initial_guess = InitialGuess::zero;
-  /// Frames optimized together (receding horizon; the paper used 10).
+  /// Frames optimized together (receding horizon; the paper used 10); at least 1.
   int window = 1;
 
   ActiveSet active_set = ActiveSet::at_risk;
   /// A must-stay-hidden triangle is at risk when its facing value s_j (dimensionless) is below
-  /// this in the current state or in a predicted uncontrolled step of the window.
+  /// this in the current state or in a predicted uncontrolled step of the window. Finite; at
+  /// most -1 selects no triangle, above 1 every one.
   double active_band = 0.3;
-  /// Rings of vertex adjacency added around the vertices of at-risk triangles.
+  /// Rings of vertex adjacency added around the vertices of at-risk triangles (>= 0).
   int active_rings = 2;
   /// Reduced control space for vertex forces: 0 (default) optimizes one force per active
   /// block; K > 0 groups the active blocks into at most K spatial clusters (farthest-point
@@ -141,13 +151,13 @@ struct ControlOptions {
   /// per cluster, each block b of cluster c receiving m_b a_c. That is 3K variables per frame
   /// instead of 3 x active blocks: central differences then cost 6K simulations per gradient,
   /// which makes black-box engines practical, at the price of smoother (less sparse) forces.
-  /// Ignored for body wrenches (already 6 numbers per body).
+  /// Ignored for body wrenches (already 6 numbers per body). At least 0.
   int clusters = 0;
   /// Occlusion term of EC (energy.hpp, OcclusionPair): a vertex of a must-stay-hidden triangle
   /// that an observed triangle hides (on the camera ray through it, at the start of the
   /// frame) is penalized when it comes closer to that triangle's plane than this fraction of
-  /// its depth behind it in the reference shape (set_reference_shape()). 0 disables the term;
-  /// it needs ControlFrameInput::observed.
+  /// its depth behind it in the reference shape (set_reference_shape()). In [0, 1); 0 disables
+  /// the term; it needs ControlFrameInput::observed.
   double occlusion_margin = 0.5;
   /// Penalize interior triangles (Mesh::interior) like unobserved ones. Off by default:
   /// interior faces are drawn in a uniform colour, and the pieces of a fracture must open to
@@ -156,17 +166,19 @@ struct ControlOptions {
 
   /// Optional box bound on every control component, in units of the block's weight m_b g0
   /// (torques: m_b g0 arm_b); 0 = unbounded. A bound B limits |f_b| to sqrt(3) B m_b g0.
+  /// Finite and >= 0.
   double force_bound = 0.0;
-  /// Lever arm (metres) of body_wrench blocks whose simulator gives none
+  /// Lever arm (metres, finite and > 0) of body_wrench blocks whose simulator gives none
   /// (ControlLayout::block_arm): torques are scaled by m_b g0 torque_arm and count as the force
   /// |tau| / torque_arm in EF and ET.
   double torque_arm = 0.1;
   /// Smoothing of the norms in EF and ET, in units of the block weight: eps_b = this * m_b g0.
+  /// Finite and > 0.
   double force_smoothing = 1e-2;
 
-  /// Central-difference step, relative to the block weight: h_b = fd_step * m_b g0 newtons.
-  /// The default is cbrt(machine epsilon), which balances the O(h^2) truncation error against
-  /// the O(eps / h) round-off of central differences.
+  /// Central-difference step, relative to the block weight: h_b = fd_step * m_b g0 newtons
+  /// (finite and > 0). The default is cbrt(machine epsilon), which balances the O(h^2)
+  /// truncation error against the O(eps / h) round-off of central differences.
   double fd_step = 6.0554544523933395e-06;
   /// Run central-difference probes in parallel over simulator clones (TBB). The result is
   /// bit-identical to the serial path.
@@ -175,7 +187,7 @@ struct ControlOptions {
   /// optimizer's triangles) within which a vertex force is assumed to move the surface in one
   /// frame. Vertices probed together are at least 2 * difference_rings + 1 edges apart; a
   /// larger value is more accurate and needs more probes (docs/benchmarks.md measures the
-  /// gradient error of each value on Bullet cloth).
+  /// gradient error of each value on Bullet cloth). At least 0.
   int difference_rings = 2;
 
   /// Search on the linearized dynamics, with adjoint gradients and a simulator that offers
@@ -192,20 +204,20 @@ struct ControlOptions {
   /// per vertex of its rings); when they would exceed 1.25e8 numbers (1 GB), every evaluation
   /// simulates instead.
   bool linearized = true;
-  int max_linearizations = 4;
+  int max_linearizations = 4;  ///< at least 1
   /// Linearized search: it also stops after an outer iteration that lowers the true energy by
   /// less than this fraction of the energy at the initial guess (0 = never). The first outer
   /// iterations remove the violation, which dominates the initial energy; once a move gains
   /// less than 0.1% of it, the next ones only trim the force terms further (example 1:
-  /// docs/benchmarks.md, "The linearized search's stop rule").
+  /// docs/benchmarks.md, "The linearized search's stop rule"). In [0, 1).
   double linearized_ftol_initial = 1e-3;
-  /// Linearized search: relative energy tolerance of the solver on the model (at least
-  /// ftol_rel).
+  /// Linearized search: relative energy tolerance of the solver on the model (finite and >= 0;
+  /// ftol_rel when that is larger).
   double model_ftol_rel = 1e-4;
 
-  /// Stopping: objective evaluations (NLopt) / iterations (Ipopt), relative tolerance on the
-  /// energy, absolute tolerance on the variables (units of block weight), wall-clock limit
-  /// in seconds per frame (0 = none).
+  /// Stopping: objective evaluations (NLopt) / iterations (Ipopt, at least 1), relative
+  /// tolerance on the energy, absolute tolerance on the variables (units of block weight),
+  /// wall-clock limit in seconds per frame (0 = none); the last three finite and >= 0.
   int max_evaluations = 200;
   double ftol_rel = 1e-6;
   double xtol_abs = 1e-5;
@@ -297,10 +309,12 @@ class ControlOptimizer {
  public:
   /// `triangles` (#F by 3, indices of Simulator surface vertices) is the surface the
   /// visibility term sees; `interior` (#F or empty) flags interior triangles.
+  /// Throws InputError from ControlOptions::validate() for invalid options.
   ControlOptimizer(Triangles triangles, std::vector<std::uint8_t> interior = {},
                    ControlOptions options = {});
 
   const ControlOptions& options() const { return m_options; }
+  /// Takes new options after ControlOptions::validate() (InputError; the old ones are kept).
   void set_options(const ControlOptions& options);
 
   /// Optimizes the controls for the frames of `window` (the first is frame t+1; at most
