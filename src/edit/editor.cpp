@@ -126,30 +126,6 @@ Footage open_footage(const Scene& s) {
   }
 }
 
-ControlOptions control_options(const SceneControl& c) {
-  ControlOptions o;
-  o.weights.visibility = c.weight_visibility;
-  o.weights.force = c.weight_force;
-  o.weights.temporal = c.weight_temporal;
-  o.window = c.window;
-  o.solver = parse_control_solver(c.solver);
-  o.gradient = c.gradient == "central"      ? GradientMode::central
-               : c.gradient == "compressed" ? GradientMode::compressed
-               : c.gradient == "adjoint"    ? GradientMode::adjoint
-                                            : GradientMode::automatic;
-  o.difference_rings = c.difference_rings;
-  o.active_set = c.active_set == "all" ? ActiveSet::all : ActiveSet::at_risk;
-  o.max_evaluations = c.max_iterations;
-  o.initial_guess = c.warm_start ? InitialGuess::previous : InitialGuess::zero;
-  o.barrier.margin = c.margin;
-  o.force_bound = c.force_bound;
-  o.clusters = c.clusters;
-  o.linearized = c.linearized;
-  o.max_linearizations = c.max_linearizations;
-  o.linearized_ftol_initial = c.linearized_tolerance;
-  return o;
-}
-
 std::vector<int> select_anchors(const Scene& s, const Mesh& mesh, int original_vertices,
                                 std::vector<std::string>& warnings) {
   std::vector<int> ids;
@@ -495,7 +471,7 @@ EditResult run_edit(const Scene& scene, const EditOptions& options, const EditCa
                            " surface vertices, the mesh " + std::to_string(mesh.num_vertices()));
 
   const bool control = options.control.value_or(scene.control.enabled);
-  const ControlOptions control_settings = control_options(scene.control);
+  const ControlOptions control_settings = control_options(scene);
   if (control) {
     try {
       resolve_gradient(*sim, control_settings.gradient);  // before any output, not per frame

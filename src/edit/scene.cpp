@@ -215,6 +215,73 @@ int Scene::line_of(const std::string& key) const {
 
 namespace {
 
+/// The scene key that sets a ControlOptions field, from the key of its InputError
+/// ("ControlOptions::barrier.margin" -> "control.margin"); "control" for a field no key sets.
+std::string scene_key_of_control_option(const std::string& option) {
+  static const std::map<std::string, std::string> keys = {
+      {"weights.visibility", "control.weights.visibility"},
+      {"weights.force", "control.weights.force"},
+      {"weights.temporal", "control.weights.temporal"},
+      {"window", "control.window"},
+      {"solver", "control.solver"},
+      {"gradient", "control.gradient"},
+      {"difference_rings", "control.difference_rings"},
+      {"active_set", "control.active_set"},
+      {"max_evaluations", "control.max_iterations"},
+      {"initial_guess", "control.warm_start"},
+      {"barrier.margin", "control.margin"},
+      {"force_bound", "control.force_bound"},
+      {"clusters", "control.clusters"},
+      {"linearized", "control.linearized"},
+      {"max_linearizations", "control.max_linearizations"},
+      {"linearized_ftol_initial", "control.linearized_tolerance"},
+  };
+  const std::string prefix = "ControlOptions::";
+  const std::string field =
+      option.rfind(prefix, 0) == 0 ? option.substr(prefix.size()) : std::string();
+  const auto it = keys.find(field);
+  return it == keys.end() ? "control" : it->second;
+}
+
+}  // namespace
+
+ControlOptions control_options(const Scene& scene) {
+  const SceneControl& c = scene.control;
+  ControlOptions o;
+  o.weights.visibility = c.weight_visibility;
+  o.weights.force = c.weight_force;
+  o.weights.temporal = c.weight_temporal;
+  o.window = c.window;
+  try {
+    o.solver = parse_control_solver(c.solver);
+  } catch (const std::invalid_argument& e) {
+    throw InputError(e.what(), scene.file, scene.line_of("control.solver"), "key 'control.solver'");
+  }
+  o.gradient = c.gradient == "central"      ? GradientMode::central
+               : c.gradient == "compressed" ? GradientMode::compressed
+               : c.gradient == "adjoint"    ? GradientMode::adjoint
+                                            : GradientMode::automatic;
+  o.difference_rings = c.difference_rings;
+  o.active_set = c.active_set == "all" ? ActiveSet::all : ActiveSet::at_risk;
+  o.max_evaluations = c.max_iterations;
+  o.initial_guess = c.warm_start ? InitialGuess::previous : InitialGuess::zero;
+  o.barrier.margin = c.margin;
+  o.force_bound = c.force_bound;
+  o.clusters = c.clusters;
+  o.linearized = c.linearized;
+  o.max_linearizations = c.max_linearizations;
+  o.linearized_ftol_initial = c.linearized_tolerance;
+  try {
+    o.validate();
+  } catch (const InputError& e) {
+    const std::string key = scene_key_of_control_option(e.key());
+    throw InputError(e.message(), scene.file, scene.line_of(key), "key '" + key + "'");
+  }
+  return o;
+}
+
+namespace {
+
 /// Throws InputError at the second of two equal keys of any mapping under `node` (YAML
 /// forbids them; the parser would keep the first silently). `prefix`: the dotted name of `node`.
 void reject_duplicate_keys(const YAML::Node& node, const std::string& prefix,
@@ -499,10 +566,8 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
         r.fail(n["max_iterations"], "control.max_iterations", "must be at least 1");
     }
     if (n["warm_start"]) c.warm_start = r.boolean(n["warm_start"], "control.warm_start");
-    if (n["margin"]) {
-      c.margin = r.number(n["margin"], "control.margin");
-      if (c.margin < 0 || c.margin >= 1) r.fail(n["margin"], "control.margin", "must be in [0, 1)");
-    }
+    // The range of margin (and the other values' as the optimizer sees them): control_options().
+    if (n["margin"]) c.margin = r.number(n["margin"], "control.margin");
     if (n["clusters"]) {
       c.clusters = r.integer(n["clusters"], "control.clusters");
       if (c.clusters < 0) r.fail(n["clusters"], "control.clusters", "must not be negative");
@@ -530,6 +595,8 @@ Scene parse_scene_nodes(const std::string& text, const fs::path& path) {
         r.fail(n["force_bound"], "control.force_bound", "must not be negative");
     }
   }
+
+  control_options(s);  // the optimizer's own checks, at the key that set the field
 
   require(r, root, "output", "");
   {

@@ -1,5 +1,8 @@
 // Scene file parsing: every documented key, and errors that name file, line and key.
 
+#include <limits>
+#include <string>
+
 #include <gtest/gtest.h>
 
 #include "pbve/core/error.hpp"
@@ -330,6 +333,45 @@ TEST(Scene, LinearizedTolerance) {
   EXPECT_NE(e.find(":23:"), std::string::npos) << e;
   EXPECT_NE(e.find("control.linearized_tolerance"), std::string::npos) << e;
   EXPECT_NE(e.find("less than 1"), std::string::npos) << e;
+}
+
+// control.margin becomes the optimizer's barrier margin: the values ControlOptions::validate()
+// refuses (0 among them, which the scene took before) are errors at the key and its line.
+TEST(SceneErrors, ControlValuesTheOptimizerRefusesNameKeyAndLine) {
+  const std::string gradient = "  gradient: central";
+  auto with_margin = [&](const std::string& value) {
+    std::string text = kFull;
+    text.replace(text.find(gradient), gradient.size(), gradient + "\n  margin: " + value);
+    return text;
+  };
+  EXPECT_DOUBLE_EQ(parse_scene(with_margin("0.2"), "/scenes/s.yaml").control.margin, 0.2);
+  for (const std::string value : {"0", "1", "-0.1"}) {
+    const std::string e = error_of(with_margin(value));
+    EXPECT_NE(e.find("/scenes/s.yaml:23: key 'control.margin': must be greater than 0 and less "
+                     "than 1, got " +
+                     value),
+              std::string::npos)
+        << e;
+  }
+  // A scene made in code: the value is named by the key that would set it.
+  pbve::Scene s = parse_scene(kFull, "/scenes/s.yaml");
+  s.control.weight_force = std::numeric_limits<double>::quiet_NaN();
+  try {
+    pbve::control_options(s);
+    ADD_FAILURE() << "a NaN force weight was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(e.line(), 19);
+    EXPECT_EQ(e.key(), "key 'control.weights.force'");
+    EXPECT_NE(std::string(e.what()).find("nan"), std::string::npos) << e.what();
+  }
+  s.control.weight_force = 0.002;
+  s.control.solver = "knitro";
+  EXPECT_THROW(pbve::control_options(s), InputError);
+  s.control.solver = "slsqp";
+  const pbve::ControlOptions o = pbve::control_options(s);
+  EXPECT_EQ(o.window, 3);
+  EXPECT_DOUBLE_EQ(o.weights.temporal, 0.003);
+  EXPECT_EQ(o.gradient, pbve::GradientMode::central);
 }
 
 TEST(SceneErrors, MissingRequiredKey) {

@@ -45,6 +45,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   expect(scene.simulation.substeps >= 1 && scene.simulation.substeps <= 10000, "substeps range");
   expect(scene.control.window >= 1 && scene.control.window <= 100, "window range");
   expect(scene.control.max_iterations >= 1 && scene.control.clusters >= 0, "control ranges");
+  expect(scene.control.margin > 0 && scene.control.margin < 1, "margin range");
   for (const auto& [key, line] : scene.lines) expect(line >= 1, "key lines are 1-based");
   // The resolved scene as text (the report's settings) for any accepted scene.
   expect(!pbve::scene_to_yaml(scene).empty(), "the resolved scene has text");

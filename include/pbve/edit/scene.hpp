@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include "pbve/control/optimizer.hpp"
 #include "pbve/core/error.hpp"
 
 namespace pbve {
@@ -105,7 +106,7 @@ struct SceneControl {
   std::string active_set = "auto";  ///< auto | all
   int max_iterations = 200;         ///< objective evaluations (NLopt) / iterations (Ipopt)
   bool warm_start = false;          ///< start from the previous frame's forces (else zero)
-  double margin = 0.05;             ///< facing margin of the smooth visibility term
+  double margin = 0.05;             ///< facing margin of the smooth visibility term, in (0, 1)
   /// Bound on each control force component, in multiples of its vertex's (or body's) weight
   /// m g; 0 = unbounded.
   double force_bound = 0.0;
@@ -153,11 +154,17 @@ struct Scene {
 
 /// Parses a scene file. Throws InputError naming the file, the line and the key for YAML
 /// syntax errors, unknown keys (with the nearest valid key), wrong types, missing required
-/// keys (input, camera, object.mesh, object.poses, output.video) and out-of-range values.
+/// keys (input, camera, object.mesh, object.poses, output.video) and out-of-range values
+/// (for `control:`, those of control_options()).
 Scene load_scene(const std::filesystem::path& path);
 
 /// Parses scene text as if read from `path` (relative paths resolve against its folder).
 Scene parse_scene(const std::string& text, const std::filesystem::path& path);
+
+/// The control optimizer's options of the scene's `control:` section (what it does not set
+/// keeps ControlOptions' defaults), checked by ControlOptions::validate(): an invalid value is
+/// an InputError at the scene file's key that set it, with its line.
+ControlOptions control_options(const Scene& scene);
 
 /// An engine's InputError about this scene (its file, no line: a scene key such as
 /// `simulation.material`, or a message naming `parameter NAME`) with the key's line added; any
