@@ -80,6 +80,11 @@ class WindowProblem {
         throw std::invalid_argument("ControlFrameInput::unobserved of frame " + std::to_string(k) +
                                     " has " + std::to_string(in.unobserved.size()) +
                                     " entries, expected " + std::to_string(nf));
+      if (!in.observed.empty() && in.observed.size() != nf)
+        throw std::invalid_argument("ControlFrameInput::observed of frame " + std::to_string(k) +
+                                    " has " + std::to_string(in.observed.size()) +
+                                    " entries, expected " + std::to_string(nf) +
+                                    " (one per triangle) or none");
       StepInput s;
       s.dt = in.dt;
       s.anchor_targets = in.anchor_targets;

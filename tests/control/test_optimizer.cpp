@@ -492,6 +492,47 @@ TEST(ControlOptimizer, RingCountsBeyondTheMeshStopGrowing) {
   EXPECT_TRUE(e.gradient.allFinite());
 }
 
+// ControlFrameInput::observed is one flag per triangle or empty (no occlusion term); another
+// size is an error naming both sizes, whether or not the occlusion term is on.
+TEST(ControlOptimizer, ObservedFlagsOfAnotherSizeAreErrors) {
+  const auto nf = static_cast<size_t>(sheet_triangles().rows());
+  for (const double occlusion_margin : {0.5, 0.0}) {
+    ControlOptions o;
+    o.occlusion_margin = occlusion_margin;
+    for (const size_t size : {size_t{3}, nf + 1}) {
+      std::vector<ControlFrameInput> in = frames(2);
+      in[1].observed.assign(size, 0);
+      auto expect_refused = [&](int frame, auto call) {
+        const std::string expected = "ControlFrameInput::observed of frame " +
+                                     std::to_string(frame) + " has " + std::to_string(size) +
+                                     " entries, expected " + std::to_string(nf);
+        try {
+          call();
+          ADD_FAILURE() << size << " observed flags accepted";
+        } catch (const std::invalid_argument& e) {
+          EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+        }
+      };
+      o.window = 2;
+      test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+      ControlOptimizer opt(sheet_triangles(), {}, o);
+      const Vertices x0 = sim.positions();
+      expect_refused(1, [&] { opt.step(sim, in); });
+      expect_refused(1, [&] { opt.evaluate(sim, in, {}, GradientMode::central); });
+      EXPECT_EQ(sim.positions(), x0);  // refused before any step
+      in[0] = in[1];
+      expect_refused(0, [&] { opt.step_uncontrolled(sim, in[0]); });
+    }
+    // Empty (no occlusion term) and one per triangle are taken.
+    std::vector<ControlFrameInput> in = frames(1);
+    test::ParticleSimulator sim(sheet(kEdgeOn), {0});
+    ControlOptimizer opt(sheet_triangles(), {}, o);
+    EXPECT_NO_THROW(opt.step(sim, in));
+    in[0].observed.assign(nf, 0);
+    EXPECT_NO_THROW(opt.step(sim, in));
+  }
+}
+
 TEST(ControlOptimizer, RejectsBadInput) {
   test::ParticleSimulator sim(sheet(kEdgeOn), {0});
   ControlOptimizer opt(sheet_triangles());

@@ -232,10 +232,11 @@ struct ControlFrameInput {
   Vertices anchor_targets;
   /// #F, 1 = triangle not observed in this input frame (v_j = 0): it must stay hidden.
   std::vector<std::uint8_t> unobserved;
-  /// #F, 1 = triangle observed in this input frame (v_j = 1), or empty. Needed by the
-  /// occlusion term (ControlOptions::occlusion_margin): the vertices of must-stay-hidden
-  /// triangles that observed ones hide must stay behind them. (Not simply !unobserved: a
-  /// triangle may be neither, e.g. unobserved but too close to edge-on to be penalized.)
+  /// #F, 1 = triangle observed in this input frame (v_j = 1), or empty (no occlusion term in
+  /// this frame; another size is an error). Needed by the occlusion term
+  /// (ControlOptions::occlusion_margin): the vertices of must-stay-hidden triangles that
+  /// observed ones hide must stay behind them. (Not simply !unobserved: a triangle may be
+  /// neither, e.g. unobserved but too close to edge-on to be penalized.)
   std::vector<std::uint8_t> observed;
 };
 
