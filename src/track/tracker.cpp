@@ -12,6 +12,7 @@
 #include <utility>
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
@@ -832,11 +833,49 @@ void check_size(const cv::Mat& frame, const Camera& camera) {
                      std::to_string(camera.height));
 }
 
+/// "(x, y, ...)" with the stream's default precision (nan and inf as such).
+template <class Vector>
+std::string coordinates(const Vector& v) {
+  std::ostringstream s;
+  s << '(';
+  for (Eigen::Index k = 0; k < v.size(); ++k) s << (k ? ", " : "") << v[k];
+  s << ')';
+  return s.str();
+}
+
+/// The frame's size and type: 8-bit grey, BGR or BGRA (what corners and optical flow take).
+void check_frame(const cv::Mat& frame, const Camera& camera, const char* where) {
+  check_size(frame, camera);
+  const int channels = frame.channels();
+  if (frame.depth() != CV_8U || (channels != 1 && channels != 3 && channels != 4))
+    throw InputError(std::string(where) + ": frame of type " + cv::typeToString(frame.type()) +
+                     ", expected 8-bit grey, BGR or BGRA (CV_8UC1, CV_8UC3 or CV_8UC4)");
+}
+
+/// `f()`, with an OpenCV exception (a check of OpenCV's that the input fails) as an InputError
+/// naming `where`.
+template <class F>
+auto opencv_checked(const char* where, F f) {
+  try {
+    return f();
+  } catch (const cv::Exception& e) {
+    throw InputError(std::string(where) + ": OpenCV refused the input (" + e.err + " in " + e.func +
+                     ")");
+  }
+}
+
 }  // namespace
 
 void PoseTracker::start(const cv::Mat& frame, const Pose& pose) {
   Impl& m = *m_impl;
-  check_size(frame, m.camera);
+  check_frame(frame, m.camera, "PoseTracker::start");
+  if (!pose.rotation.allFinite() || !pose.translation.allFinite())
+    throw InputError("PoseTracker::start: the initial pose is not finite");
+  opencv_checked("PoseTracker::start", [&] { start_checked(frame, pose); });
+}
+
+void PoseTracker::start_checked(const cv::Mat& frame, const Pose& pose) {
+  Impl& m = *m_impl;
   const cv::Mat g = grey(frame), bgr = colour(frame);
   m.colours = {};
   m.key = m.detect(g, cv::Mat(), pose);
@@ -862,9 +901,13 @@ void PoseTracker::start(const cv::Mat& frame, const Pose& pose) {
 }
 
 std::optional<Pose> PoseTracker::track(const cv::Mat& frame, TrackFrameInfo* info) {
+  if (!m_impl->started) throw std::logic_error("PoseTracker::track() before start()");
+  check_frame(frame, m_impl->camera, "PoseTracker::track");
+  return opencv_checked("PoseTracker::track", [&] { return track_checked(frame, info); });
+}
+
+std::optional<Pose> PoseTracker::track_checked(const cv::Mat& frame, TrackFrameInfo* info) {
   Impl& m = *m_impl;
-  if (!m.started) throw std::logic_error("PoseTracker::track() before start()");
-  check_size(frame, m.camera);
   TrackFrameInfo local;
   TrackFrameInfo& out = info ? *info : local;
   out = TrackFrameInfo{};
@@ -1063,6 +1106,31 @@ Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
   if (mesh_points.size() < 4)
     throw InputError("correspondences: at least 4 are needed to solve for a pose, got " +
                      std::to_string(mesh_points.size()));
+  camera.validate();
+  const auto n = static_cast<Eigen::Index>(mesh_points.size());
+  Eigen::MatrixX3d centred(n, 3);
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const Vector3d& p = mesh_points[static_cast<size_t>(k)];
+    const Vector2d& q = pixels[static_cast<size_t>(k)];
+    if (!p.allFinite())
+      throw InputError("correspondences: pair " + std::to_string(k) + ": mesh point " +
+                       coordinates(p) + " is not finite");
+    if (!q.allFinite())
+      throw InputError("correspondences: pair " + std::to_string(k) + ": pixel " + coordinates(q) +
+                       " is not finite");
+    centred.row(k) = p.transpose();
+  }
+  // The rotation about a line through every mesh point is undetermined (PnP solvers fail or
+  // return any of them): the points must span a plane at least.
+  centred.rowwise() -= centred.colwise().mean();
+  const Eigen::Vector3d spread = Eigen::JacobiSVD<Eigen::MatrixX3d>(centred).singularValues();
+  if (!(spread[0] > 0.0))
+    throw InputError("correspondences: all " + std::to_string(n) +
+                     " mesh points are the same point: no pose follows from them");
+  if (!(spread[1] > 1e-6 * spread[0]))
+    throw InputError("correspondences: all " + std::to_string(n) +
+                     " mesh points lie on one line, which leaves the rotation about it "
+                     "undetermined: add points off that line");
   std::vector<cv::Point3d> o;
   std::vector<cv::Point2d> i;
   for (size_t k = 0; k < pixels.size(); ++k) {
@@ -1072,11 +1140,16 @@ Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
   const cv::Matx33d kmat = camera_matrix(camera);
   cv::Mat rvec, tvec;
   const int method = o.size() >= 6 ? cv::SOLVEPNP_ITERATIVE : cv::SOLVEPNP_SQPNP;
-  if (!cv::solvePnP(o, i, kmat, cv::noArray(), rvec, tvec, false, method))
-    throw InputError("correspondences: no pose fits them");
-  cv::solvePnPRefineLM(o, i, kmat, cv::noArray(), rvec, tvec);
   std::vector<cv::Point2d> proj;
-  cv::projectPoints(o, rvec, tvec, kmat, cv::noArray(), proj);
+  try {
+    if (!cv::solvePnP(o, i, kmat, cv::noArray(), rvec, tvec, false, method))
+      throw InputError("correspondences: no pose fits them");
+    cv::solvePnPRefineLM(o, i, kmat, cv::noArray(), rvec, tvec);
+    cv::projectPoints(o, rvec, tvec, kmat, cv::noArray(), proj);
+  } catch (const cv::Exception& e) {  // a degenerate configuration the checks above let pass
+    throw InputError("correspondences: no pose fits them (the solver refused them: " + e.err +
+                     "): check that the points are spread out and the pairs are right");
+  }
   double sq = 0.0;
   for (size_t k = 0; k < proj.size(); ++k) sq += std::pow(cv::norm(proj[k] - i[k]), 2);
   const double rms = std::sqrt(sq / static_cast<double>(proj.size()));
@@ -1095,6 +1168,7 @@ Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
 // `x y z u v` (a point in mesh coordinates and its pixel); `#` starts a comment.
 Pose pose_from_correspondence_file(const std::filesystem::path& path, const Mesh& mesh,
                                    const Camera& camera, double max_rms_px) {
+  camera.validate();  // its own error, not one about the file
   std::ifstream in(path);
   if (!in) throw InputError("cannot read the correspondence file", path);
   std::vector<Eigen::Vector3d> points;

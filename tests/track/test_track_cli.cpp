@@ -7,6 +7,8 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -147,6 +149,30 @@ TEST_F(TrackCli, BadCorrespondenceLineNamesFileAndLine) {
   EXPECT_NE(r.output.find("pairs.txt:2: expected a number, found 'x'"), std::string::npos)
       << r.output;
   EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+}
+
+// Pairs no pose can come from (mesh points on one line, or all one point) are an error naming
+// the file and what is wrong with them, with status 1 and nothing written; OpenCV's assertion
+// messages used to reach the terminal instead.
+TEST_F(TrackCli, DegenerateCorrespondencesNameTheFileAndWhatIsWrong) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"0 0 0 300 200\n0.1 0 0 310 205\n0.2 0 0 320 210\n0.3 0 0 330 215\n",
+       "pairs.txt: correspondences: all 4 mesh points lie on one line"},
+      {"0.1 0.1 0.1 300 200\n0.1 0.1 0.1 310 205\n0.1 0.1 0.1 320 210\n0.1 0.1 0.1 330 215\n",
+       "pairs.txt: correspondences: all 4 mesh points are the same point"},
+      {"3 300 200\n3 310 205\n3 320 210\n3 330 215\n",
+       "pairs.txt: correspondences: all 4 mesh points are the same point"},
+  };
+  for (const auto& [text, what] : cases) {
+    std::ofstream(dir / "pairs.txt") << text;
+    const CmdResult r = pbve_cmd(base() + "--correspondences " + (dir / "pairs.txt").string() +
+                                 " -o " + (dir / "tracked.txt").string() + " --quiet");
+    EXPECT_EQ(r.status, 1) << r.output;
+    EXPECT_NE(r.output.find("pbve track: error: "), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find(what), std::string::npos) << r.output;
+    EXPECT_EQ(r.output.find("OpenCV"), std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(dir / "tracked.txt"));
+  }
 }
 
 TEST_F(TrackCli, ObjectLeavingTheViewForGoodExitsWithStatus1AndLostFrames) {

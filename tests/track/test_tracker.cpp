@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -69,6 +70,63 @@ TEST(TrackPnP, TooFewOrInconsistentPairsAreErrors) {
     pixels.emplace_back(i == 0 ? 600.0 : 320.0, 240.0 + i);
   }
   EXPECT_THROW(pose_from_correspondences(points, pixels, cam), InputError);
+}
+
+// Degenerate pairs are InputErrors that say what is wrong, never OpenCV's exceptions: mesh
+// points on one line (SQPnP's assertion for 4, any rotation about the line for 8), all one
+// point, nearly on one line (the solver's own refusal), or coordinates that are not finite.
+TEST(TrackPnP, DegeneratePairsAreInputErrorsThatSayWhy) {
+  const Camera cam = vga();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  auto expect_error = [&](const std::vector<Eigen::Vector3d>& points,
+                          const std::vector<Eigen::Vector2d>& pixels, const std::string& what) {
+    try {
+      pose_from_correspondences(points, pixels, cam);
+      ADD_FAILURE() << "no error, expected '" << what << "'";
+    } catch (const InputError& e) {
+      const std::string m = e.what();
+      EXPECT_NE(m.find(what), std::string::npos) << m;
+    } catch (const std::exception& e) {
+      ADD_FAILURE() << "not an InputError: " << e.what();
+    }
+  };
+  for (const size_t n : {size_t{4}, size_t{8}}) {
+    std::vector<Eigen::Vector3d> line, same, nearly;
+    std::vector<Eigen::Vector2d> pixels;
+    for (size_t i = 0; i < n; ++i) {
+      const double t = 0.1 * static_cast<double>(i);
+      line.emplace_back(t, 0.5 * t, 0.0);
+      same.emplace_back(0.1, 0.2, 0.3);
+      nearly.emplace_back(t, i == 2 ? 1e-7 : 0.0, 0.0);
+      pixels.emplace_back(300.0 + 100.0 * t, 200.0 + 50.0 * t);
+    }
+    expect_error(line, pixels, "all " + std::to_string(n) + " mesh points lie on one line");
+    expect_error(same, pixels, "all " + std::to_string(n) + " mesh points are the same point");
+    expect_error(nearly, pixels, "mesh points lie on one line");
+  }
+  // Just off a line: what the solver makes of it is its business, but it is an InputError.
+  std::vector<Eigen::Vector3d> off;
+  std::vector<Eigen::Vector2d> pixels;
+  for (int i = 0; i < 4; ++i) {
+    off.emplace_back(0.1 * i, i == 2 ? 1e-6 : 0.0, 0.0);
+    pixels.emplace_back(300.0 + 10.0 * i, 200.0 + 5.0 * i);
+  }
+  expect_error(off, pixels, "correspondences: ");
+  // Not finite: the pair is named.
+  const Mesh box = make_box_mesh(0.3, 0.2, 0.1);
+  std::vector<Eigen::Vector3d> points;
+  pixels.clear();
+  for (int i = 0; i < box.num_vertices(); ++i) {
+    points.push_back(box.vertices.row(i).transpose());
+    pixels.push_back(cam.project(some_pose().apply(points.back())));
+  }
+  auto bad_point = points;
+  bad_point[3].x() = nan;
+  expect_error(bad_point, pixels, "pair 3: mesh point (nan, ");
+  auto bad_pixel = pixels;
+  bad_pixel[5].y() = std::numeric_limits<double>::infinity();
+  expect_error(points, bad_pixel, "pair 5: pixel (");
+  EXPECT_NO_THROW(pose_from_correspondences(points, pixels, cam));
 }
 
 // The setting at a reduced length: a textured board moved around and turned on a
@@ -224,6 +282,44 @@ TEST(Tracker, ObjectWithoutCornersUnderTheInitialPoseIsAnError) {
   away.translation.x() += 5.0;
   PoseTracker tracker(clip.mesh_data, clip.camera);
   EXPECT_THROW(tracker.start(footage.frame(0), away), InputError);
+}
+
+// Frames the tracker cannot read (not 8-bit, or two channels) and poses that are not finite
+// are InputErrors naming the call, in start() and in track() alike.
+TEST(Tracker, FramesOfAnotherTypeAndNonFinitePosesAreInputErrors) {
+  test::TempDir dir;
+  SynthOptions o;
+  o.frames = 2;
+  o.supersample = 1;
+  const SynthOutput clip = synthesize(o, dir.path());
+  Footage footage = Footage::open_video(clip.video);
+  const cv::Mat f0 = footage.frame(0), f1 = footage.frame(1);
+  const Pose p0 = *clip.track.poses[0];
+  cv::Mat two(f0.rows, f0.cols, CV_8UC2, cv::Scalar(40, 80)), wide, real;
+  f0.convertTo(wide, CV_16UC3, 256.0);
+  f1.convertTo(real, CV_32FC3, 1.0 / 255.0);
+  auto expect_error = [](const std::string& what, auto call) {
+    try {
+      call();
+      ADD_FAILURE() << "no error, expected '" << what << "'";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    } catch (const std::exception& e) {
+      ADD_FAILURE() << "not an InputError: " << e.what();
+    }
+  };
+  for (const cv::Mat* bad : {&two, &wide, &real}) {
+    PoseTracker tracker(clip.mesh_data, clip.camera);
+    expect_error("PoseTracker::start: frame of type CV_", [&] { tracker.start(*bad, p0); });
+    tracker.start(f0, p0);
+    expect_error("PoseTracker::track: frame of type CV_", [&] { tracker.track(*bad); });
+    EXPECT_TRUE(tracker.track(f1).has_value());  // the refused frame changed nothing
+  }
+  Pose nan_pose = p0;
+  nan_pose.translation.z() = std::numeric_limits<double>::quiet_NaN();
+  PoseTracker tracker(clip.mesh_data, clip.camera);
+  expect_error("PoseTracker::start: the initial pose is not finite",
+               [&] { tracker.start(f0, nan_pose); });
 }
 
 }  // namespace

@@ -113,15 +113,19 @@ class PoseTracker {
   PoseTracker(const PoseTracker&) = delete;
   PoseTracker& operator=(const PoseTracker&) = delete;
 
-  /// Starts on `frame` (BGR or grey, the camera's size) where the object has `pose`: it becomes
-  /// the first keyframe. Throws InputError when the object shows no trackable corner there.
+  /// Starts on `frame` (8-bit grey, BGR or BGRA, the camera's size) where the object has `pose`:
+  /// it becomes the first keyframe. Throws InputError for a frame of another size or type, a
+  /// pose that is not finite, or when the object shows too few trackable corners there.
   void start(const cv::Mat& frame, const Pose& pose);
-  /// The pose in the next frame, or std::nullopt when lost. start() first.
+  /// The pose in the next frame, or std::nullopt when lost. start() first. Throws InputError
+  /// for a frame of another size or type than start() takes.
   std::optional<Pose> track(const cv::Mat& frame, TrackFrameInfo* info = nullptr);
 
  private:
   struct Impl;
   std::unique_ptr<Impl> m_impl;
+  void start_checked(const cv::Mat& frame, const Pose& pose);
+  std::optional<Pose> track_checked(const cv::Mat& frame, TrackFrameInfo* info);
 };
 
 /// Poses of a whole clip.
@@ -146,8 +150,10 @@ TrackResult track_footage(Footage& footage, const Mesh& mesh, const Camera& came
 
 /// The pose that maps `mesh_points` (mesh coordinates) onto `pixels` with `camera`
 /// (perspective-n-point, at least 4 pairs, iterative refinement). Throws InputError for fewer
-/// than 4 pairs, mismatched sizes, or a solution with RMS reprojection error above `max_rms_px`
-/// (the message gives it) or with the object behind the camera.
+/// than 4 pairs, mismatched sizes, an invalid camera, a coordinate that is not finite (naming
+/// the pair), mesh points that are all one point or on one line (the rotation about it is
+/// undetermined), a configuration the solver refuses, or a solution with RMS reprojection error
+/// above `max_rms_px` (the message gives it) or with the object behind the camera.
 Pose pose_from_correspondences(const std::vector<Eigen::Vector3d>& mesh_points,
                                const std::vector<Eigen::Vector2d>& pixels, const Camera& camera,
                                double max_rms_px = 5.0);
