@@ -123,6 +123,9 @@ int run_edit(const std::vector<std::string>& argv) {
       "%.1f ms/frame\n",
       s.frames, s.violation_pct_mean, s.violation_pct_max, s.control_to_physical_force_median,
       s.ms_per_frame_mean);
+  if (s.nan_frames > 0)
+    std::printf("%d frames with unknown (NaN) figures, left out of those statistics\n",
+                s.nan_frames);
   for (const auto& w : r.report.warnings) std::printf("warning: %s\n", w.c_str());
   if (r.status == EditStatus::diverged) {
     std::fflush(stdout);

@@ -61,18 +61,44 @@ ReportSummary Report::summary() const {
   ReportSummary s;
   s.frames = static_cast<int>(frames.size());
   if (frames.empty()) return s;
+  // Sums and counts over the figures that are numbers: NaN is unknown, not a value (and would
+  // break the ordering the median sorts by).
+  struct Mean {
+    double sum = 0.0;
+    int count = 0;
+    void add(double v) {
+      if (std::isnan(v)) return;
+      sum += v;
+      ++count;
+    }
+    double value() const {
+      return count > 0 ? sum / count : std::numeric_limits<double>::quiet_NaN();
+    }
+  };
+  Mean violation, frame_ms, solve_ms;
+  double violation_max = -std::numeric_limits<double>::infinity();
   std::vector<double> ratios;
   for (const FrameRecord& f : frames) {
-    s.violation_pct_mean += f.violation_pct;
-    s.violation_pct_max = std::max(s.violation_pct_max, f.violation_pct);
-    s.ms_per_frame_mean += f.frame_ms;
-    s.solve_ms_mean += f.solve_ms;
-    if (f.physical_force > 0.0) ratios.push_back(f.control_force / f.physical_force);
+    violation.add(f.violation_pct);
+    if (!std::isnan(f.violation_pct)) violation_max = std::max(violation_max, f.violation_pct);
+    frame_ms.add(f.frame_ms);
+    solve_ms.add(f.solve_ms);
+    if (f.physical_force > 0.0) {
+      const double ratio = f.control_force / f.physical_force;
+      if (!std::isnan(ratio)) ratios.push_back(ratio);
+    }
+    for (const double v :
+         {f.violation_pct, f.control_force, f.physical_force, f.frame_ms, f.solve_ms})
+      if (std::isnan(v)) {
+        ++s.nan_frames;
+        break;
+      }
   }
-  const double n = static_cast<double>(frames.size());
-  s.violation_pct_mean /= n;
-  s.ms_per_frame_mean /= n;
-  s.solve_ms_mean /= n;
+  s.violation_pct_mean = violation.value();
+  s.violation_pct_max =
+      violation.count > 0 ? violation_max : std::numeric_limits<double>::quiet_NaN();
+  s.ms_per_frame_mean = frame_ms.value();
+  s.solve_ms_mean = solve_ms.value();
   s.control_to_physical_force_median = median(std::move(ratios));
   return s;
 }
@@ -141,6 +167,7 @@ void write_report(const Report& report, const std::filesystem::path& path) {
                   {"control_to_physical_force_median", s.control_to_physical_force_median},
                   {"ms_per_frame_mean", s.ms_per_frame_mean},
                   {"solve_ms_mean", s.solve_ms_mean},
+                  {"nan_frames", s.nan_frames},
                   {"warnings", report.warnings}};
   j["settings"] = report.settings_yaml.empty() ? json::object()
                                                : yaml_to_json(YAML::Load(report.settings_yaml));

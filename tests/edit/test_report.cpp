@@ -36,6 +36,50 @@ TEST(Report, SummaryStatistics) {
   EXPECT_DOUBLE_EQ(s.ms_per_frame_mean, 25.0);
 }
 
+// A NaN figure (unknown; null in a report read back) is left out of its statistics and its
+// frame counted: NaN in the ratios broke the ordering the median sorts by (the median came out
+// NaN here, not 3) and NaN violation made the mean NaN but not the maximum.
+TEST(Report, NaNFiguresAreLeftOutOfTheSummaryAndCounted) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  pbve::Report r;
+  const double control[] = {5.0, 1.0, nan, 4.0, 2.0, 3.0, inf};
+  for (int i = 0; i < 7; ++i) r.frames.push_back(frame(i, i == 2 ? nan : 1.0 + i, control[i], 1.0));
+  r.frames[6].physical_force = inf;  // inf / inf: no ratio
+  r.frames[4].frame_ms = nan;
+  pbve::ReportSummary s = r.summary();
+  EXPECT_EQ(s.frames, 7);
+  EXPECT_EQ(s.nan_frames, 2);  // frame 2 (violation, control force) and frame 4 (time)
+  EXPECT_DOUBLE_EQ(s.control_to_physical_force_median, 3.0);  // of 5, 1, 4, 2, 3
+  EXPECT_DOUBLE_EQ(s.violation_pct_mean, (1.0 + 2.0 + 4.0 + 5.0 + 6.0 + 7.0) / 6.0);
+  EXPECT_DOUBLE_EQ(s.violation_pct_max, 7.0);
+  EXPECT_DOUBLE_EQ(s.ms_per_frame_mean, (10.0 + 20.0 + 30.0 + 40.0 + 60.0 + 70.0) / 6.0);
+
+  // The same through a report written and read back (NaN is null there).
+  pbve::test::TempDir dir;
+  pbve::write_report(r, dir / "r.json");
+  const pbve::Report b = pbve::read_report(dir / "r.json");
+  s = b.summary();
+  EXPECT_EQ(s.nan_frames, 3);  // frame 6's infinite physical force came back NaN as well
+  EXPECT_DOUBLE_EQ(s.control_to_physical_force_median, 3.0);
+  std::ifstream in(dir / "r.json");
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("\"nan_frames\": 2"), std::string::npos) << text;
+  EXPECT_NE(text.find("\"control_to_physical_force_median\": 3.0"), std::string::npos) << text;
+
+  // No frame with a number: the means and the maximum are NaN (null), the median 0.
+  pbve::Report unknown;
+  unknown.frames = {frame(0, nan, nan, 1.0), frame(1, nan, 0.5, nan)};
+  unknown.frames[0].frame_ms = unknown.frames[1].frame_ms = nan;
+  s = unknown.summary();
+  EXPECT_EQ(s.nan_frames, 2);
+  EXPECT_TRUE(std::isnan(s.violation_pct_mean));
+  EXPECT_TRUE(std::isnan(s.violation_pct_max));
+  EXPECT_TRUE(std::isnan(s.ms_per_frame_mean));
+  EXPECT_DOUBLE_EQ(s.solve_ms_mean, 0.0);
+  EXPECT_DOUBLE_EQ(s.control_to_physical_force_median, 0.0);
+}
+
 TEST(Report, FaithfulnessWarningsGroupRuns) {
   std::vector<pbve::FrameRecord> f;
   for (int i = 0; i < 60; ++i) f.push_back(frame(i, 0, (i >= 40 && i <= 52) ? 0.5 : 0.1, 1.0));

@@ -27,15 +27,22 @@ struct FrameRecord {
   int substep_factor = 1;
 };
 
-/// Summary over the frames.
+/// Summary over the frames. A figure that is NaN (unknown: null in the JSON) is left out of
+/// the statistics of that figure, and its frame counted in nan_frames; a statistic no frame
+/// has a number for is NaN (the ratio median: 0). Infinite figures are kept.
 struct ReportSummary {
   int frames = 0;
   double violation_pct_mean = 0.0;
   double violation_pct_max = 0.0;
-  /// Median over frames with a non-zero physical force of control_force / physical_force.
+  /// Median over frames with a non-zero physical force of control_force / physical_force,
+  /// where that ratio is a number (a NaN force, or both forces infinite, leaves the frame out);
+  /// 0 when no frame has one.
   double control_to_physical_force_median = 0.0;
   double ms_per_frame_mean = 0.0;
   double solve_ms_mean = 0.0;
+  /// Frames with a figure of the summary's (violation_pct, control_force, physical_force,
+  /// frame_ms, solve_ms) that is NaN.
+  int nan_frames = 0;
 };
 
 /// Tracking run before editing (scene key `object.poses: track`).
