@@ -169,12 +169,20 @@ void write_report(const Report& report, const std::filesystem::path& path) {
                   {"solve_ms_mean", s.solve_ms_mean},
                   {"nan_frames", s.nan_frames},
                   {"warnings", report.warnings}};
-  j["settings"] = report.settings_yaml.empty() ? json::object()
-                                               : yaml_to_json(YAML::Load(report.settings_yaml));
+  j["settings"] = json::object();
+  if (!report.settings_yaml.empty()) {
+    try {
+      j["settings"] = yaml_to_json(YAML::Load(report.settings_yaml));
+    } catch (const YAML::Exception&) {
+      j["settings"] = report.settings_yaml;  // not YAML (set in code): kept as text
+    }
+  }
   write_atomically(path, [&](const std::filesystem::path& tmp) {
     std::ofstream out(tmp, std::ios::binary);
     if (!out) throw InputError("cannot write the report", path);
-    out << j.dump(2) << '\n';
+    // JSON text is UTF-8: a byte of a string that is not (a Latin-1 file name, say) is written
+    // as U+FFFD, the replacement character; nlohmann::json has no lossless escape for it.
+    out << j.dump(2, ' ', false, json::error_handler_t::replace) << '\n';
     if (!out) throw InputError("failed while writing the report", path);
   });
 }

@@ -2,14 +2,17 @@
 
 #include <fstream>
 #include <iterator>
+#include <string>
 
 #include <cmath>
 #include <limits>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "pbve/core/error.hpp"
 #include "pbve/edit/report.hpp"
+#include "pbve/edit/scene.hpp"
 #include "support/test_util.hpp"
 
 namespace {
@@ -125,6 +128,51 @@ TEST(Report, AFigureThatIsNotFiniteComesBackAsNaN) {
   EXPECT_TRUE(std::isnan(b.frames[0].violation_pct));
   EXPECT_TRUE(std::isnan(b.frames[0].physical_force));
   EXPECT_DOUBLE_EQ(b.frames[0].control_force, 0.2);
+}
+
+// JSON is UTF-8: a file name in Latin-1 stopped write_report() with nlohmann::json's type error
+// 316 (after the whole edit). Each byte that is not valid UTF-8 is now written as U+FFFD; valid
+// text, non-ASCII included, is kept as it is.
+TEST(Report, StringsThatAreNotUtf8AreWrittenWithReplacementCharacters) {
+  pbve::test::TempDir dir;
+  const std::string latin1 = "/data/caf\xe9";  // "café" in Latin-1
+  const std::string replaced = "/data/caf\xef\xbf\xbd";
+  const std::string utf8 = "/data/caf\xc3\xa9 \xe6\x97\xa5";  // "café 日" in UTF-8
+  pbve::Report r;
+  r.frames = {frame(0, 1.5, 0.2, 2.0)};
+  r.engine = "mass_spring";
+  r.complete = false;
+  r.stopped_reason = "cannot read " + latin1 + ".mkv";
+  r.warnings = {latin1 + ".obj: 2 degenerate triangles", utf8 + ".obj", "\xff\xfe" + utf8};
+  r.tracking = pbve::ReportTracking{};
+  r.tracking->poses = latin1 + ".poses.txt";
+  r.settings_yaml = pbve::scene_to_yaml(
+      pbve::parse_scene("input: {video: clip.mp4}\ncamera: {fx: 1, fy: 1, cx: 0, cy: 0}\n"
+                        "object: {mesh: m.obj, poses: p.txt}\noutput: {video: o.mkv}\n",
+                        latin1 + "/s.yaml"));
+  ASSERT_NO_THROW(pbve::write_report(r, dir / "r.json"));
+  const pbve::Report b = pbve::read_report(dir / "r.json");
+  ASSERT_EQ(b.warnings.size(), 3u);
+  EXPECT_EQ(b.warnings[0], replaced + ".obj: 2 degenerate triangles");
+  EXPECT_EQ(b.warnings[1], utf8 + ".obj");
+  EXPECT_EQ(b.warnings[2], "\xef\xbf\xbd\xef\xbf\xbd" + utf8);
+  EXPECT_EQ(b.stopped_reason, "cannot read " + replaced + ".mkv");
+  std::ifstream in(dir / "r.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["tracking"]["poses"], replaced + ".poses.txt");
+  EXPECT_EQ(j["settings"]["input"]["video"], replaced + "/clip.mp4");
+  EXPECT_EQ(j["settings"]["object"]["mesh"], replaced + "/m.obj");
+}
+
+// Settings that are not YAML (a report made in code) are written as their text.
+TEST(Report, SettingsThatAreNotYamlAreWrittenAsText) {
+  pbve::test::TempDir dir;
+  pbve::Report r;
+  r.frames = {frame(0, 1.5, 0.2, 2.0)};
+  r.settings_yaml = "control: {solver: [slsqp\n";
+  ASSERT_NO_THROW(pbve::write_report(r, dir / "r.json"));
+  std::ifstream in(dir / "r.json");
+  EXPECT_EQ(nlohmann::json::parse(in)["settings"], r.settings_yaml);
 }
 
 TEST(Report, ReadingGarbageNamesTheFile) {

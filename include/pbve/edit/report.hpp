@@ -57,9 +57,10 @@ struct ReportTracking {
 struct Report {
   std::vector<FrameRecord> frames;
   std::vector<std::string> warnings;
-  std::string settings_yaml;  ///< the resolved scene (scene_to_yaml()); written as JSON
-  bool complete = true;       ///< false when the run stopped early (see stopped_reason)
-  int stopped_at = -1;        ///< when incomplete: the first input frame not edited
+  /// The resolved scene (scene_to_yaml()); written as JSON (as a string when it is not YAML).
+  std::string settings_yaml;
+  bool complete = true;  ///< false when the run stopped early (see stopped_reason)
+  int stopped_at = -1;   ///< when incomplete: the first input frame not edited
   std::string stopped_reason;
   std::string engine;                      ///< simulator name
   std::optional<ReportTracking> tracking;  ///< when the poses were tracked first
@@ -73,7 +74,10 @@ struct Report {
 std::vector<std::string> faithfulness_warnings(const std::vector<FrameRecord>& frames,
                                                double ratio = 0.25);
 
-/// Writes the report as JSON through a temporary name renamed on success.
+/// Writes the report as JSON through a temporary name renamed on success. JSON text is UTF-8:
+/// in a string that is not (a file name in Latin-1, say), each byte that is not part of a
+/// valid UTF-8 sequence is written as U+FFFD, the replacement character (JSON and its library
+/// have no lossless escape for a raw byte); the rest of the string is kept.
 void write_report(const Report& report, const std::filesystem::path& path);
 /// Reads a report written by write_report(). Throws InputError naming the file.
 Report read_report(const std::filesystem::path& path);
