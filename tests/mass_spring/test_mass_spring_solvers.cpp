@@ -175,6 +175,18 @@ SparseMatrix<double> sheet_strength(int n) {
   return S;
 }
 
+// The multigrid hierarchy of an n x n sheet_matrix(): by smoothed aggregation only, or (with
+// `positions`, the sheet's 3 n^2 coordinates) with its finest level coarsened by C/F splitting.
+std::shared_ptr<const pbve::mass_spring::detail::MultigridHierarchy> sheet_hierarchy(
+    const SparseMatrix<double>& A, int n, const VectorXd* positions) {
+  using pbve::mass_spring::detail::MultigridHierarchy;
+  Eigen::MatrixX3d rest;
+  if (positions)
+    rest = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(
+        positions->data(), n * n, 3);
+  return std::make_shared<const MultigridHierarchy>(A, sheet_strength(n), rest);
+}
+
 // Preconditioned CG on A x = b from 0 to |r| <= tol |b|; returns the iterations (-1 if not
 // converged in 1000 or on breakdown).
 template <class Precondition>
@@ -214,37 +226,42 @@ TEST(MassSpringSolvers, MultigridIterationsDoNotGrowWithTheResolution) {
   // so does the condition number; block-Jacobi CG needs about sqrt(16) = 4x the iterations.
   // A multigrid V-cycle's contraction is bounded independently of the mesh size, so its CG
   // iteration count stays about the same: at most 1.5x that of the coarsest sheet is asked.
+  // Both ways of building the finest transfer (smoothed aggregation; C/F splitting from the
+  // rest positions) are held to this.
   using pbve::mass_spring::detail::Multigrid;
   using pbve::mass_spring::detail::MultigridHierarchy;
-  int mg[3], jac[3];
-  const int sizes[3] = {16, 32, 64};
-  for (int k = 0; k < 3; ++k) {
-    const int n = sizes[k];
-    VectorXd x0, x;
-    const SparseMatrix<double> A = sheet_matrix(n, 0.02, x0);
-    auto hierarchy = std::make_shared<const MultigridHierarchy>(A, sheet_strength(n));
-    EXPECT_GE(hierarchy->levels().size(), k == 0 ? 2u : 3u) << n;
-    Multigrid m(hierarchy);
-    ASSERT_TRUE(m.setup(A));
-    VectorXd b;
-    mg[k] = vcycle_cg_iterations(A, m, b, x);
-    ASSERT_GT(mg[k], 0) << n;
-    EXPECT_LT((A * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
-    // The V-cycle is a symmetric positive definite operator.
-    const VectorXd u = random_vector(A.rows(), 3), v = random_vector(A.rows(), 4);
-    VectorXd Mu, Mv;
-    m.apply(u, Mu);
-    m.apply(v, Mv);
-    EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
-    EXPECT_GT(u.dot(Mu), 0.0);
-    const VectorXd d = A.diagonal();
-    jac[k] = pcg_iterations(
-        A, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { z = r.cwiseQuotient(d); }, x);
+  for (const bool cf : {false, true}) {
+    SCOPED_TRACE(cf ? "C/F splitting" : "smoothed aggregation");
+    int mg[3], jac[3];
+    const int sizes[3] = {16, 32, 64};
+    for (int k = 0; k < 3; ++k) {
+      const int n = sizes[k];
+      VectorXd x0, x;
+      const SparseMatrix<double> A = sheet_matrix(n, 0.02, x0);
+      auto hierarchy = sheet_hierarchy(A, n, cf ? &x0 : nullptr);
+      EXPECT_GE(hierarchy->levels().size(), k == 0 ? 2u : 3u) << n;
+      Multigrid m(hierarchy);
+      ASSERT_TRUE(m.setup(A));
+      VectorXd b;
+      mg[k] = vcycle_cg_iterations(A, m, b, x);
+      ASSERT_GT(mg[k], 0) << n;
+      EXPECT_LT((A * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
+      // The V-cycle is a symmetric positive definite operator.
+      const VectorXd u = random_vector(A.rows(), 3), v = random_vector(A.rows(), 4);
+      VectorXd Mu, Mv;
+      m.apply(u, Mu);
+      m.apply(v, Mv);
+      EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
+      EXPECT_GT(u.dot(Mu), 0.0);
+      const VectorXd d = A.diagonal();
+      jac[k] = pcg_iterations(
+          A, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { z = r.cwiseQuotient(d); }, x);
+    }
+    EXPECT_LE(mg[2], 1.5 * mg[0]) << mg[0] << " " << mg[1] << " " << mg[2];
+    EXPECT_LE(mg[1], 1.5 * mg[0]);
+    // The problem does get harder (else the check above would show nothing).
+    EXPECT_TRUE(jac[2] < 0 || jac[2] > 2 * jac[0]) << jac[0] << " " << jac[2];
   }
-  EXPECT_LE(mg[2], 1.5 * mg[0]) << mg[0] << " " << mg[1] << " " << mg[2];
-  EXPECT_LE(mg[1], 1.5 * mg[0]);
-  // The problem does get harder (else the check above would show nothing).
-  EXPECT_TRUE(jac[2] < 0 || jac[2] > 2 * jac[0]) << jac[0] << " " << jac[2];
   // An indefinite matrix is refused.
   VectorXd x0;
   const SparseMatrix<double> A = sheet_matrix(32, 0.02, x0);
@@ -268,52 +285,55 @@ TEST(MassSpringSolvers, MultigridProductAndFinestLevelUpdate) {
   const SparseMatrix<double> A1 = sheet_matrix(64, 0.02, x0);
   const SparseMatrix<double> A2 = sheet_matrix(64, 0.05, x0);
   ASSERT_GT((A1 - A2).norm(), 1e-3 * A1.norm());
-  auto hierarchy = std::make_shared<const MultigridHierarchy>(A1, sheet_strength(64));
-  ASSERT_GE(hierarchy->levels().size(), 3u);
-  const auto& fine = hierarchy->levels()[0];
-  ASSERT_GT(fine.part[0], 0);                       // two parts
-  ASSERT_LT(fine.part[1], fine.A.rows());           // and a separator
-  EXPECT_LE(fine.A.rows() - fine.part[1], 3 * 64);  // a few grid lines (bending springs)
-  Multigrid full(hierarchy), kept(hierarchy);
-  ASSERT_TRUE(full.setup(A2));
-  ASSERT_TRUE(kept.setup(A2, false));  // no earlier full setup: a full one
-  ASSERT_TRUE(kept.setup(A1));
-  ASSERT_TRUE(kept.setup(A2, false));
-  const VectorXd u = random_vector(A2.rows(), 7), v = random_vector(A2.rows(), 8);
-  VectorXd Ju;
-  kept.multiply(u, Ju);
-  const VectorXd ref = A2 * u;
-  // Each entry sums 39 products in another order: a few units of rounding of |A| |u|.
-  const VectorXd scale = A2.cwiseAbs() * u.cwiseAbs();
-  EXPECT_LT(((Ju - ref).cwiseQuotient(scale)).cwiseAbs().maxCoeff(), 1e-14);
-  VectorXd Mu, Mv;
-  kept.apply(u, Mu);
-  kept.apply(v, Mv);
-  EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
-  EXPECT_GT(u.dot(Mu), 0.0);
-  VectorXd x;
-  const VectorXd b = random_vector(A2.rows(), 9);
-  const int with_full = pcg_iterations(
-      A2, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { full.apply(r, z); }, x);
-  const int with_kept = pcg_iterations(
-      A2, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { kept.apply(r, z); }, x);
-  ASSERT_GT(with_full, 0);
-  ASSERT_GT(with_kept, 0);
-  EXPECT_LT((A2 * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
-  EXPECT_LE(with_kept, 1.5 * with_full) << with_full << " " << with_kept;
-  // One thread gives the same bits as two.
-  VectorXd Mu1, Ju1;
-  tbb::task_arena one(1);
-  one.execute([&] {
-    kept.apply(u, Mu1);
-    kept.multiply(u, Ju1);
-  });
-  EXPECT_TRUE(bit_equal_vectors(Mu, Mu1));
-  EXPECT_TRUE(bit_equal_vectors(Ju, Ju1));
-  // The finest level still refuses an indefinite matrix.
-  SparseMatrix<double> I(A2.rows(), A2.cols());
-  I.setIdentity();
-  EXPECT_FALSE(kept.setup(A2 - 2.0 * A2.diagonal().mean() * I, false));
+  for (const bool cf : {false, true}) {
+    SCOPED_TRACE(cf ? "C/F splitting" : "smoothed aggregation");
+    auto hierarchy = sheet_hierarchy(A1, 64, cf ? &x0 : nullptr);
+    ASSERT_GE(hierarchy->levels().size(), 3u);
+    const auto& fine = hierarchy->levels()[0];
+    ASSERT_GT(fine.part[0], 0);                       // two parts
+    ASSERT_LT(fine.part[1], fine.A.rows());           // and a separator
+    EXPECT_LE(fine.A.rows() - fine.part[1], 3 * 64);  // a few grid lines (bending springs)
+    Multigrid full(hierarchy), kept(hierarchy);
+    ASSERT_TRUE(full.setup(A2));
+    ASSERT_TRUE(kept.setup(A2, false));  // no earlier full setup: a full one
+    ASSERT_TRUE(kept.setup(A1));
+    ASSERT_TRUE(kept.setup(A2, false));
+    const VectorXd u = random_vector(A2.rows(), 7), v = random_vector(A2.rows(), 8);
+    VectorXd Ju;
+    kept.multiply(u, Ju);
+    const VectorXd ref = A2 * u;
+    // Each entry sums 39 products in another order: a few units of rounding of |A| |u|.
+    const VectorXd scale = A2.cwiseAbs() * u.cwiseAbs();
+    EXPECT_LT(((Ju - ref).cwiseQuotient(scale)).cwiseAbs().maxCoeff(), 1e-14);
+    VectorXd Mu, Mv;
+    kept.apply(u, Mu);
+    kept.apply(v, Mv);
+    EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
+    EXPECT_GT(u.dot(Mu), 0.0);
+    VectorXd x;
+    const VectorXd b = random_vector(A2.rows(), 9);
+    const int with_full = pcg_iterations(
+        A2, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { full.apply(r, z); }, x);
+    const int with_kept = pcg_iterations(
+        A2, b, 1e-8, [&](const VectorXd& r, VectorXd& z) { kept.apply(r, z); }, x);
+    ASSERT_GT(with_full, 0);
+    ASSERT_GT(with_kept, 0);
+    EXPECT_LT((A2 * x - b).norm(), 1e-8 * b.norm() * (1 + 1e-9));
+    EXPECT_LE(with_kept, 1.5 * with_full) << with_full << " " << with_kept;
+    // One thread gives the same bits as two.
+    VectorXd Mu1, Ju1;
+    tbb::task_arena one(1);
+    one.execute([&] {
+      kept.apply(u, Mu1);
+      kept.multiply(u, Ju1);
+    });
+    EXPECT_TRUE(bit_equal_vectors(Mu, Mu1));
+    EXPECT_TRUE(bit_equal_vectors(Ju, Ju1));
+    // The finest level still refuses an indefinite matrix.
+    SparseMatrix<double> I(A2.rows(), A2.cols());
+    I.setIdentity();
+    EXPECT_FALSE(kept.setup(A2 - 2.0 * A2.diagonal().mean() * I, false));
+  }
 }
 
 TEST(MassSpringSolvers, MultigridSplitsLargeCoarseLevels) {
@@ -324,33 +344,89 @@ TEST(MassSpringSolvers, MultigridSplitsLargeCoarseLevels) {
   // wrong order they were about 5x), and the same bits on one thread as on two.
   using pbve::mass_spring::detail::Multigrid;
   using pbve::mass_spring::detail::MultigridHierarchy;
-  int iterations[2];
-  const int sizes[2] = {64, 128};
-  for (int k = 0; k < 2; ++k) {
-    const int n = sizes[k];
-    VectorXd x0, x, b;
-    const SparseMatrix<double> A = sheet_matrix(n, 0.02, x0);
-    auto hierarchy = std::make_shared<const MultigridHierarchy>(A, sheet_strength(n));
-    Multigrid m(hierarchy);
-    ASSERT_TRUE(m.setup(A));
-    iterations[k] = vcycle_cg_iterations(A, m, b, x);
-    ASSERT_GT(iterations[k], 0) << n;
-    if (n < 128) continue;
-    ASSERT_GE(hierarchy->levels().size(), 3u);
-    const auto& first = hierarchy->levels()[1];
-    ASSERT_GT(first.part[0], 0);               // two parts
-    ASSERT_LT(first.part[1], first.A.rows());  // and a separator
-    const VectorXd u = random_vector(A.rows(), 3), v = random_vector(A.rows(), 4);
-    VectorXd Mu, Mv, Mu1;
-    m.apply(u, Mu);
-    m.apply(v, Mv);
-    EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
-    EXPECT_GT(u.dot(Mu), 0.0);
-    tbb::task_arena one(1);
-    one.execute([&] { m.apply(u, Mu1); });
-    EXPECT_TRUE(bit_equal_vectors(Mu, Mu1));
+  for (const bool cf : {false, true}) {
+    SCOPED_TRACE(cf ? "C/F splitting" : "smoothed aggregation");
+    int iterations[2];
+    const int sizes[2] = {64, 128};
+    for (int k = 0; k < 2; ++k) {
+      const int n = sizes[k];
+      VectorXd x0, x, b;
+      const SparseMatrix<double> A = sheet_matrix(n, 0.02, x0);
+      auto hierarchy = sheet_hierarchy(A, n, cf ? &x0 : nullptr);
+      Multigrid m(hierarchy);
+      ASSERT_TRUE(m.setup(A));
+      iterations[k] = vcycle_cg_iterations(A, m, b, x);
+      ASSERT_GT(iterations[k], 0) << n;
+      if (n < 128) continue;
+      ASSERT_GE(hierarchy->levels().size(), 3u);
+      const auto& first = hierarchy->levels()[1];
+      ASSERT_GT(first.part[0], 0);               // two parts
+      ASSERT_LT(first.part[1], first.A.rows());  // and a separator
+      const VectorXd u = random_vector(A.rows(), 3), v = random_vector(A.rows(), 4);
+      VectorXd Mu, Mv, Mu1;
+      m.apply(u, Mu);
+      m.apply(v, Mv);
+      EXPECT_NEAR(u.dot(Mv), v.dot(Mu), 1e-10 * Mu.norm() * v.norm());
+      EXPECT_GT(u.dot(Mu), 0.0);
+      tbb::task_arena one(1);
+      one.execute([&] { m.apply(u, Mu1); });
+      EXPECT_TRUE(bit_equal_vectors(Mu, Mu1));
+    }
+    EXPECT_LE(iterations[1], 1.5 * iterations[0]) << iterations[0] << " " << iterations[1];
   }
-  EXPECT_LE(iterations[1], 1.5 * iterations[0]) << iterations[0] << " " << iterations[1];
+}
+
+TEST(MassSpringSolvers, MultigridCFTransferInterpolatesAffineFunctions) {
+  // With rest positions, the finest level's coarse nodes are a maximal independent set of the
+  // stiffness graph (on the 8-neighbour sheet, every other node of every other row: a
+  // quarter), kept with weight 1, and every other node interpolates its coarse neighbours with
+  // weights that reproduce constants and the rest coordinates - also on the sheet's last row
+  // and column (32 nodes a side: no coarse node on them), where this takes extrapolation from
+  // two links away. Without it those nodes would copy their one coarse neighbour, and a
+  // free edge's bending could not be represented up to the edge.
+  const int n = 32;
+  VectorXd x0;
+  const SparseMatrix<double> A = sheet_matrix(n, 0.02, x0);
+  for (int i = 0; i < n * n; ++i) x0[3 * i + 2] = 0.0;  // flat at rest
+  const auto hierarchy = sheet_hierarchy(A, n, &x0);
+  const auto& fine = hierarchy->levels()[0];
+  ASSERT_EQ(fine.coarse, (n / 2) * (n / 2));
+  // The coarse nodes' positions: the rows of P with a single weight 1.
+  std::vector<int> of_coarse(static_cast<size_t>(fine.coarse), -1);
+  for (int i = 0; i < n * n; ++i) {
+    const int begin = fine.p_row_start[static_cast<size_t>(i)];
+    const int end = fine.p_row_start[static_cast<size_t>(i) + 1];
+    if (end - begin == 1 && fine.p_row_w[static_cast<size_t>(begin)] == 1.0) {
+      const int c = fine.p_row_col[static_cast<size_t>(begin)];
+      EXPECT_EQ(of_coarse[static_cast<size_t>(c)], -1);
+      of_coarse[static_cast<size_t>(c)] = i;
+    }
+  }
+  for (int c = 0; c < fine.coarse; ++c) ASSERT_GE(of_coarse[static_cast<size_t>(c)], 0) << c;
+  int extrapolated = 0;
+  for (int i = 0; i < n * n; ++i) {
+    double sum = 0.0, largest = 0.0;
+    Vector3d x = Vector3d::Zero();
+    bool negative = false;
+    for (int q = fine.p_row_start[static_cast<size_t>(i)];
+         q < fine.p_row_start[static_cast<size_t>(i) + 1]; ++q) {
+      const double w = fine.p_row_w[static_cast<size_t>(q)];
+      const int node = of_coarse[static_cast<size_t>(fine.p_row_col[static_cast<size_t>(q)])];
+      sum += w;
+      largest = std::max(largest, std::abs(w));
+      negative = negative || w < 0.0;
+      x += w * x0.segment<3>(3 * node);
+    }
+    extrapolated += negative;
+    // The weights sum to 1 up to rounding; the position is reproduced by a least-squares
+    // penalty of 1e8, which leaves about |w|^2 / 1e8 of the distances to the coarse nodes
+    // (at most 0.2 m here): under 1e-8 m.
+    EXPECT_NEAR(sum, 1.0, 1e-12) << i;
+    EXPECT_LT((x - x0.segment<3>(3 * i)).norm(), 1e-8) << i;
+    EXPECT_LE(largest, 2.0) << i;
+  }
+  // The last row's and column's nodes (2 n - 1 of them) extrapolate.
+  EXPECT_GE(extrapolated, n);
 }
 
 TEST(MassSpringSolvers, IndefiniteMatricesFallBackToLdlt) {

@@ -610,8 +610,8 @@ struct MassSpringSimulator::Impl {
     return false;
   }
 
-  // The model's multigrid hierarchy: aggregates from the springs between free nodes, weighted
-  // by their stiffness.
+  // The model's multigrid hierarchy: coarse spaces from the springs between free nodes,
+  // weighted by their stiffness, and the free nodes' rest positions.
   std::shared_ptr<const detail::MultigridHierarchy> multigrid_hierarchy() const {
     const Model& m = *model;
     return m.multigrid->get([&m] {
@@ -626,7 +626,10 @@ struct MassSpringSimulator::Impl {
       }
       Eigen::SparseMatrix<double> strength(n, n);
       strength.setFromTriplets(links.begin(), links.end());
-      return std::make_shared<const detail::MultigridHierarchy>(m.pattern, strength);
+      Eigen::MatrixX3d rest(n, 3);
+      for (Eigen::Index f = 0; f < n; ++f)
+        rest.row(f) = m.rest.segment<3>(3 * m.free_nodes[static_cast<size_t>(f)]).transpose();
+      return std::make_shared<const detail::MultigridHierarchy>(m.pattern, strength, rest);
     });
   }
 

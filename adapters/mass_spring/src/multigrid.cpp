@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #include <Eigen/LU>
+#include <Eigen/QR>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -27,6 +29,8 @@ using Real = Multigrid::Real;
 using Block = Multigrid::Block;
 using Vector = Multigrid::Vector;
 using Vec3 = Eigen::Matrix<Real, 3, 1>;
+// Per node: its (strong) connections, as (node, weight >= 0).
+using Graph = std::vector<std::vector<std::pair<int, double>>>;
 
 // Coarsening stops at this many nodes (the coarsest matrix is factorized dense) or when a level
 // would keep more than `max_coarse_ratio` of its nodes.
@@ -40,13 +44,23 @@ constexpr double strength_threshold = 0.08;
 // spectral radius of D^-1 L_F (at most 2; about 1.6 on triangle meshes), estimated by this
 // many power iterations.
 constexpr int spectral_iterations = 30;
+// C/F interpolation (the finest level when rest positions are given): affine reproduction to
+// this relative tolerance, and weights at most this large in magnitude.
+// this relative tolerance, and weights at most this large in magnitude; the least-squares
+// reproduction is a penalty of this weight. A node whose rest position its C neighbours miss
+// by more than `outside` (relative to their distance; rounding and curvature miss by far
+// less) or reproduce with a weight below `-outside` lies outside them (on a free edge):
+// interpolated from farther C nodes.
+constexpr double affine_penalty = 1e8;
+constexpr double outside = 0.05;
+constexpr double max_weight = 3.0;
 
 // The spectral radius of D^-1 L_F by power iteration from a fixed pseudo-random vector. D^-1 L_F
 // is similar to the normalized Laplacian D^-1/2 L_F D^-1/2, whose eigenvalues are real, in
 // [0, 2], and the largest at least m / (m - 1) > 1 on a connected part of m >= 2 nodes: the
 // estimate (from below) is clamped to [1, 2], so omega is in [2/3, 4/3] even if the iteration
 // has not converged or the graph has no edge.
-double laplacian_radius(const std::vector<std::vector<std::pair<int, double>>>& strong) {
+double laplacian_radius(const Graph& strong) {
   const size_t n = strong.size();
   VectorXd v = pseudo_random_vector(static_cast<Eigen::Index>(n));
   std::vector<double> w(n), d(n, 0.0);
@@ -74,8 +88,7 @@ double laplacian_radius(const std::vector<std::vector<std::pair<int, double>>>& 
 // a node whose strong neighbours are all free starts an aggregate with them; the nodes left
 // join the aggregate of their strongest aggregated neighbour; the rest (no aggregated strong
 // neighbour) start aggregates with their free strong neighbours.
-std::vector<int> aggregate(const std::vector<std::vector<std::pair<int, double>>>& strong,
-                           int& count) {
+std::vector<int> aggregate(const Graph& strong, int& count) {
   const int n = static_cast<int>(strong.size());
   std::vector<int> agg(static_cast<size_t>(n), -1);
   count = 0;
@@ -109,16 +122,15 @@ std::vector<int> aggregate(const std::vector<std::vector<std::pair<int, double>>
   return agg;
 }
 
-// Builds the transfer of `level` from its strength graph S (n x n, symmetric, off-diagonal
-// entries the connection weights >= 0; the diagonal is ignored). Returns the next level's S
-// (P^T L P with L the graph Laplacian of S), or an empty matrix when coarsening stops.
-SparseMatrix<double> build_transfer(const SparseMatrix<double>& S, Level& level) {
+// The strong connections of the strength graph S (n x n, symmetric, off-diagonal entries the
+// connection weights; the diagonal is ignored), and each node's total connection in `total`.
+Graph strong_graph(const SparseMatrix<double>& S, std::vector<double>& total) {
   const int n = static_cast<int>(S.rows());
-  std::vector<double> total(static_cast<size_t>(n), 0.0);
+  total.assign(static_cast<size_t>(n), 0.0);
   for (int j = 0; j < n; ++j)
     for (SparseMatrix<double>::InnerIterator it(S, j); it; ++it)
       if (it.row() != j) total[static_cast<size_t>(j)] += std::abs(it.value());
-  std::vector<std::vector<std::pair<int, double>>> strong(static_cast<size_t>(n));
+  Graph strong(static_cast<size_t>(n));
   for (int j = 0; j < n; ++j)
     for (SparseMatrix<double>::InnerIterator it(S, j); it; ++it) {
       const int i = static_cast<int>(it.row());
@@ -128,13 +140,52 @@ SparseMatrix<double> build_transfer(const SparseMatrix<double>& S, Level& level)
                    std::sqrt(total[static_cast<size_t>(i)] * total[static_cast<size_t>(j)]))
         strong[static_cast<size_t>(j)].emplace_back(i, w);
     }
+  return strong;
+}
+
+// Stores the prolongator P (n x count) in `level` and returns the next level's strength graph
+// P^T L P, L the graph Laplacian of S (weights `total` on the diagonal).
+SparseMatrix<double> finish_transfer(const SparseMatrix<double>& S,
+                                     const std::vector<double>& total,
+                                     const std::vector<Eigen::Triplet<double>>& entries, int count,
+                                     Level& level) {
+  const int n = static_cast<int>(S.rows());
+  SparseMatrix<double> P(n, count);
+  P.setFromTriplets(entries.begin(), entries.end());  // sums duplicates
+  P.prune(0.0);
+  level.coarse = count;
+  const SparseMatrix<double, Eigen::RowMajor> Pr = P;
+  level.p_row_start.assign(Pr.outerIndexPtr(), Pr.outerIndexPtr() + n + 1);
+  level.p_row_col.assign(Pr.innerIndexPtr(), Pr.innerIndexPtr() + Pr.nonZeros());
+  level.p_row_w.assign(Pr.valuePtr(), Pr.valuePtr() + Pr.nonZeros());
+  level.p_col_start.assign(P.outerIndexPtr(), P.outerIndexPtr() + count + 1);
+  level.p_col_row.assign(P.innerIndexPtr(), P.innerIndexPtr() + P.nonZeros());
+  level.p_col_w.assign(P.valuePtr(), P.valuePtr() + P.nonZeros());
+  std::vector<Eigen::Triplet<double>> lap;
+  for (int j = 0; j < n; ++j) {
+    lap.emplace_back(j, j, total[static_cast<size_t>(j)]);
+    for (SparseMatrix<double>::InnerIterator it(S, j); it; ++it)
+      if (it.row() != j) lap.emplace_back(static_cast<int>(it.row()), j, -std::abs(it.value()));
+  }
+  SparseMatrix<double> L(n, n);
+  L.setFromTriplets(lap.begin(), lap.end());
+  SparseMatrix<double> next = SparseMatrix<double>(P.transpose()) * L * P;
+  next.prune(0.0);
+  return next;
+}
+
+// Builds the transfer of `level` by smoothed aggregation from its strength graph S. Returns the
+// next level's S, or an empty matrix when coarsening stops.
+SparseMatrix<double> build_transfer(const SparseMatrix<double>& S, Level& level) {
+  const int n = static_cast<int>(S.rows());
+  std::vector<double> total;
+  const Graph strong = strong_graph(S, total);
   int count = 0;
   const std::vector<int> agg = aggregate(strong, count);
   if (n <= coarsest_nodes || count > max_coarse_ratio * n || count == 0) return {};
 
   // P = (I - omega D^-1 L_F) P_0, row by row: P_0 puts node i in its aggregate with weight 1.
   const double smoothing_omega = 4.0 / (3.0 * laplacian_radius(strong));
-  SparseMatrix<double> P(n, count);
   std::vector<Eigen::Triplet<double>> entries;
   for (int i = 0; i < n; ++i) {
     const auto& nb = strong[static_cast<size_t>(i)];
@@ -149,28 +200,124 @@ SparseMatrix<double> build_transfer(const SparseMatrix<double>& S, Level& level)
     for (const auto& e : nb)
       entries.emplace_back(i, agg[static_cast<size_t>(e.first)], smoothing_omega * e.second / d);
   }
-  P.setFromTriplets(entries.begin(), entries.end());  // sums duplicates
-  P.prune(0.0);
-  level.coarse = count;
-  const SparseMatrix<double, Eigen::RowMajor> Pr = P;
-  level.p_row_start.assign(Pr.outerIndexPtr(), Pr.outerIndexPtr() + n + 1);
-  level.p_row_col.assign(Pr.innerIndexPtr(), Pr.innerIndexPtr() + Pr.nonZeros());
-  level.p_row_w.assign(Pr.valuePtr(), Pr.valuePtr() + Pr.nonZeros());
-  level.p_col_start.assign(P.outerIndexPtr(), P.outerIndexPtr() + count + 1);
-  level.p_col_row.assign(P.innerIndexPtr(), P.innerIndexPtr() + P.nonZeros());
-  level.p_col_w.assign(P.valuePtr(), P.valuePtr() + P.nonZeros());
+  return finish_transfer(S, total, entries, count, level);
+}
 
-  // The next level's strength graph: the Galerkin product of the Laplacian.
-  std::vector<Eigen::Triplet<double>> lap;
-  for (int j = 0; j < n; ++j) {
-    lap.emplace_back(j, j, total[static_cast<size_t>(j)]);
-    for (SparseMatrix<double>::InnerIterator it(S, j); it; ++it)
-      if (it.row() != j) lap.emplace_back(static_cast<int>(it.row()), j, -std::abs(it.value()));
+// Interpolation weights w of the rest position x from the rest positions of `from`: summing
+// to 1, and among those, reproducing x as an affine combination as closely as the points
+// allow (least squares), and among those the least norm with each point's weight scaled by
+// its inverse squared distance (near points first). Returns the distance between x and that
+// combination relative to the farthest point.
+double affine_weights(const Vector3d& x, const std::vector<int>& from, const Eigen::MatrixX3d& rest,
+                      std::vector<double>& w) {
+  const auto k = static_cast<Eigen::Index>(from.size());
+  double scale = 0.0;
+  for (const int c : from) scale = std::max(scale, (rest.row(c).transpose() - x).norm());
+  if (!(scale > 0.0)) {
+    w.assign(from.size(), 1.0 / static_cast<double>(k));
+    return 0.0;
   }
-  SparseMatrix<double> L(n, n);
-  L.setFromTriplets(lap.begin(), lap.end());
-  SparseMatrix<double> next = SparseMatrix<double>(P.transpose()) * L * P;
-  next.prune(0.0);
+  Eigen::MatrixX3d D(k, 3);
+  for (Eigen::Index q = 0; q < k; ++q)
+    D.row(q) = (rest.row(from[static_cast<size_t>(q)]) - x.transpose()) / scale;
+  // min w^T Q w subject to sum(w) = 1, Q = mu D D^T + diag(|d_q|^2): w = Q^-1 1 / 1^T Q^-1 1.
+  Eigen::MatrixXd Q = affine_penalty * (D * D.transpose());
+  for (Eigen::Index q = 0; q < k; ++q) Q(q, q) += std::max(D.row(q).squaredNorm(), 1e-12);
+  const VectorXd y = Q.ldlt().solve(VectorXd::Ones(k));
+  const VectorXd wv = y / y.sum();
+  w.assign(wv.data(), wv.data() + k);
+  if (!wv.allFinite()) return std::numeric_limits<double>::infinity();
+  return (D.transpose() * wv).norm();
+}
+
+// Builds the transfer of `level` by C/F splitting, from its strength graph S and its nodes'
+// rest positions `rest` (replaced by the next level's): the coarse (C) nodes are a maximal
+// independent set of the strong graph (greedy, in node order: on a triangle mesh about one node
+// in four), and each other (F) node interpolates from its strong C neighbours with weights
+// reproducing affine functions of the rest position (linear interpolation between them); where
+// they cannot (a node on a free edge with C neighbours on one side only), from the C nodes
+// within two, then three strong links (linear extrapolation towards the edge). Against smoothed
+// aggregation (about nine nodes per aggregate): a coarse space twice as fine whose matrix has
+// about 13 blocks per row instead of 22, and a free edge's bending modes represented up to the
+// edge. Returns the next level's S, or an empty matrix (level.coarse 0) when this does not
+// coarsen.
+SparseMatrix<double> build_cf_transfer(const SparseMatrix<double>& S, Eigen::MatrixX3d& rest,
+                                       Level& level) {
+  const int n = static_cast<int>(S.rows());
+  std::vector<double> total;
+  const Graph strong = strong_graph(S, total);
+  std::vector<int> coarse(static_cast<size_t>(n), -2);  // C index, -1 F, -2 unassigned
+  int count = 0;
+  for (int i = 0; i < n; ++i) {
+    if (coarse[static_cast<size_t>(i)] != -2) continue;
+    coarse[static_cast<size_t>(i)] = count++;
+    for (const auto& e : strong[static_cast<size_t>(i)])
+      if (coarse[static_cast<size_t>(e.first)] == -2) coarse[static_cast<size_t>(e.first)] = -1;
+  }
+  if (n <= coarsest_nodes || count > max_coarse_ratio * n) return {};
+  std::vector<Eigen::Triplet<double>> entries;
+  std::vector<int> from, frontier, next_frontier, seen(static_cast<size_t>(n), 0);
+  int stamp = 0;
+  std::vector<double> w;
+  for (int i = 0; i < n; ++i) {
+    const auto& nb = strong[static_cast<size_t>(i)];
+    if (coarse[static_cast<size_t>(i)] >= 0) {
+      entries.emplace_back(i, coarse[static_cast<size_t>(i)], 1.0);
+      continue;
+    }
+    const Vector3d x = rest.row(i).transpose();
+    from.clear();
+    for (const auto& e : nb)
+      if (coarse[static_cast<size_t>(e.first)] >= 0) from.push_back(e.first);
+    const auto nearest = from.size();
+    double miss = affine_weights(x, from, rest, w);
+    // Not reproduced, or not by interpolation: the C nodes two, then three links away too.
+    for (int depth = 2;
+         depth <= 3 &&
+         (miss > outside || std::any_of(w.begin(), w.end(), [](double v) { return v < -outside; }));
+         ++depth) {
+      const size_t before = from.size();
+      ++stamp;
+      frontier.assign(1, i);
+      seen[static_cast<size_t>(i)] = stamp;
+      for (int d = 0; d < depth; ++d) {
+        next_frontier.clear();
+        for (const int u : frontier)
+          for (const auto& e : strong[static_cast<size_t>(u)])
+            if (seen[static_cast<size_t>(e.first)] != stamp) {
+              seen[static_cast<size_t>(e.first)] = stamp;
+              next_frontier.push_back(e.first);
+              if (coarse[static_cast<size_t>(e.first)] >= 0 &&
+                  std::find(from.begin(), from.end(), e.first) == from.end())
+                from.push_back(e.first);
+            }
+        frontier.swap(next_frontier);
+      }
+      if (from.size() > before) miss = affine_weights(x, from, rest, w);
+    }
+    // Large weights (extrapolation from points nearly coincident or far): direct
+    // interpolation, by connection.
+    const bool usable =
+        std::all_of(w.begin(), w.end(), [](double v) { return std::abs(v) <= max_weight; });
+    if (!usable) {
+      from.resize(nearest);
+      double sum = 0.0;
+      for (const auto& e : nb)
+        if (coarse[static_cast<size_t>(e.first)] >= 0) sum += e.second;
+      w.clear();
+      for (const auto& e : nb)
+        if (coarse[static_cast<size_t>(e.first)] >= 0) w.push_back(e.second / sum);
+    }
+    for (size_t q = 0; q < from.size(); ++q)
+      if (std::abs(w[q]) > 1e-12)
+        entries.emplace_back(i, coarse[static_cast<size_t>(from[q])], w[q]);
+  }
+  Eigen::MatrixX3d next_rest(count, 3);
+  for (int i = 0; i < n; ++i)
+    if (coarse[static_cast<size_t>(i)] >= 0)
+      next_rest.row(coarse[static_cast<size_t>(i)]) = rest.row(i);
+  SparseMatrix<double> next = finish_transfer(S, total, entries, count, level);
+  rest = std::move(next_rest);
   return next;
 }
 
@@ -359,10 +506,12 @@ void order_level(Level& level, int min_split, const Level* next) {
 }  // namespace
 
 MultigridHierarchy::MultigridHierarchy(const SparseMatrix<double>& pattern,
-                                       const SparseMatrix<double>& strength) {
+                                       const SparseMatrix<double>& strength,
+                                       const Eigen::MatrixX3d& rest) {
   const int n = static_cast<int>(strength.rows());
-  if (pattern.rows() != 3 * n || pattern.cols() != 3 * n || strength.cols() != n)
-    throw std::logic_error("multigrid: pattern and strength graph sizes differ");
+  if (pattern.rows() != 3 * n || pattern.cols() != 3 * n || strength.cols() != n ||
+      (rest.rows() != 0 && rest.rows() != n))
+    throw std::logic_error("multigrid: pattern, strength graph and rest positions sizes differ");
   // Level 0's blocks from the symmetric pattern: block row i = block column i, read from
   // columns 3i .. 3i + 2, which must hold the same rows in groups of three.
   Level fine;
@@ -393,9 +542,18 @@ MultigridHierarchy::MultigridHierarchy(const SparseMatrix<double>& pattern,
   }
   m_levels.push_back(std::move(fine));
   SparseMatrix<double> S = strength;
+  // C/F splitting while there are positions and it coarsens (a coarse node is a fine node,
+  // with its position), smoothed aggregation below.
+  Eigen::MatrixX3d positions = rest;
   for (;;) {
     Level& level = m_levels.back();
-    S = build_transfer(S, level);
+    SparseMatrix<double> next_s;
+    if (positions.rows() > 0) next_s = build_cf_transfer(S, positions, level);
+    if (level.coarse == 0) {
+      positions.resize(0, 3);  // aggregates below: no positions
+      next_s = build_transfer(S, level);
+    }
+    S = std::move(next_s);
     if (level.coarse == 0) break;
     Blocks next = build_plans(level);
     Level coarse;

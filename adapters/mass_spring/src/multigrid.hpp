@@ -1,13 +1,15 @@
 #pragma once
-// Smoothed-aggregation algebraic multigrid for the symmetric 3x3-block systems of a model (the
-// Newton and adjoint matrices J = M (1 + h alpha) + h^2 K + ... on the free nodes), used as the
-// preconditioner of conjugate gradients.
+// Algebraic multigrid for the symmetric 3x3-block systems of a model (the Newton and adjoint
+// matrices J = M (1 + h alpha) + h^2 K + ... on the free nodes), used as the preconditioner of
+// conjugate gradients.
 //
 // Everything that depends only on the topology is built once per model and shared by clones
-// (MultigridHierarchy): the aggregates of every level, found from the rest springs' stiffness
-// between free nodes, the prolongators (one translation per aggregate and direction, smoothed
-// once with the stiffness graph), the coarse matrices' patterns and the plans of their
-// Galerkin products. A matrix then costs only its numeric setup (Multigrid::setup(): one pass
+// (MultigridHierarchy): the coarse spaces of every level, found from the rest springs'
+// stiffness between free nodes - the finest by C/F splitting when the nodes' rest positions
+// are given (a quarter of the nodes kept, the others interpolated linearly from them), every
+// other by smoothed aggregation (one translation per aggregate and direction, smoothed once
+// with the stiffness graph) - the coarse matrices' patterns and the plans of their Galerkin
+// products. A matrix then costs only its numeric setup (Multigrid::setup(): one pass
 // over each level's Galerkin plan, the inverses of the diagonal blocks and a dense LL^T of
 // the coarsest level, a few hundred unknowns at most), and a V-cycle costs a few
 // matrix-vector products: both linear in the number of nodes.
@@ -30,8 +32,11 @@ class MultigridHierarchy {
   /// strength: n x n, symmetric, off-diagonal entries >= 0 (the stiffness connecting two free
   /// nodes, N/m), pattern within the pattern's blocks. Throws std::logic_error if the pattern
   /// is not made of full 3x3 blocks.
+  /// rest: n x 3, the nodes' rest positions, or empty; with them, the finest level coarsens by
+  /// C/F splitting with affine interpolation, else (and below it) by smoothed aggregation.
   MultigridHierarchy(const Eigen::SparseMatrix<double>& pattern,
-                     const Eigen::SparseMatrix<double>& strength);
+                     const Eigen::SparseMatrix<double>& strength,
+                     const Eigen::MatrixX3d& rest = Eigen::MatrixX3d());
 
   /// Block sparse rows: row i's blocks are start[i] .. start[i + 1] - 1, in column col[e];
   /// diag[i] is the diagonal block of row i.
