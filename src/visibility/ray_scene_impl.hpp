@@ -5,11 +5,13 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <sstream>
 
 #include <embree3/rtcore.h>
 #include <tbb/blocked_range2d.h>
 #include <tbb/parallel_for.h>
 
+#include "core/ray_limits.hpp"
 #include "pbve/core/error.hpp"
 #include "pbve/visibility/ray_scene.hpp"
 
@@ -35,9 +37,11 @@ struct RayScene::Impl {
 
 namespace detail {
 
-/// Throws InputError unless the camera's rays are finite: positive finite focal lengths, a
-/// finite principal point (which may lie outside the image: a camera for a part of it) and a
-/// positive image size. A non-finite ray direction aborts Embree (its assertions are on).
+/// Throws InputError unless the camera's rays can be cast: positive finite focal lengths, a
+/// finite principal point (which may lie outside the image: a camera for a part of it), a
+/// positive image size, and ray direction components over the image within
+/// max_ray_component (see Camera::validate()). Embree aborts the process on a ray outside
+/// these (its assertions are on).
 inline void check_ray_camera(const Camera& camera) {
   if (!(camera.fx > 0.0) || !(camera.fy > 0.0) || !std::isfinite(camera.fx) ||
       !std::isfinite(camera.fy) || !std::isfinite(camera.cx) || !std::isfinite(camera.cy) ||
@@ -45,6 +49,16 @@ inline void check_ray_camera(const Camera& camera) {
     throw InputError(
         "the camera needs positive finite focal lengths, a finite principal point "
         "and a positive image size");
+  const double slope = std::max(farthest_edge_px(camera.cx, camera.width) / camera.fx,
+                                farthest_edge_px(camera.cy, camera.height) / camera.fy);
+  if (!(slope <= max_ray_component)) {
+    std::ostringstream s;
+    s << "the camera's rays through the image's edges would have direction components up to "
+      << slope << ", beyond the " << max_ray_component << " ray casting accepts (fx " << camera.fx
+      << ", fy " << camera.fy << ", cx " << camera.cx << ", cy " << camera.cy << ", "
+      << camera.width << "x" << camera.height << ")";
+    throw InputError(s.str());
+  }
 }
 
 /// Side length (in samples) of the square tiles processed as one parallel task.

@@ -109,4 +109,53 @@ TEST(Camera, ValidateNamesTheBadField) {
   expect_invalid(cam, "camera.height");
 }
 
+// The ray through pixel (u, v) has direction ((u - cx) / fx, (v - cy) / fy, 1); Embree aborts on
+// a component beyond 1.844e18, finite or not. With cx = 318 in a 640-pixel row, the farthest
+// edge (u = 639.5) is 321.5 px away: fx must be at least 321.5 / 1.844e18 = 1.7435e-16. With
+// cy = 243.5 in 480 rows, the farthest edge (v = -0.5) is 244 px away: fy >= 1.3232e-16.
+TEST(Camera, ValidateRefusesFocalLengthsTooShortForTheRaysThroughTheImage) {
+  const double fx_min = 321.5 / 1.844e18, fy_min = 244.0 / 1.844e18;
+  Camera cam = test_camera();
+  cam.fx = 1e-40;
+  expect_invalid(cam, "camera.fx");
+  cam = test_camera();
+  cam.fy = 1e-40;
+  expect_invalid(cam, "camera.fy");
+  cam = test_camera();
+  cam.fx = std::numeric_limits<double>::denorm_min();  // 321.5 / fx overflows a double
+  expect_invalid(cam, "camera.fx");
+  cam = test_camera();
+  cam.fx = 0.99 * fx_min;
+  expect_invalid(cam, "camera.fx");
+  cam.fx = 1.01 * fx_min;
+  EXPECT_NO_THROW(cam.validate());
+  cam = test_camera();
+  cam.fy = 0.99 * fy_min;
+  expect_invalid(cam, "camera.fy");
+  cam.fy = 1.01 * fy_min;
+  EXPECT_NO_THROW(cam.validate());
+  // The bound follows the principal point: at the left edge, the right edge is 640 px away.
+  cam = test_camera();
+  cam.cx = -0.5;
+  cam.fx = 1.01 * fx_min;
+  expect_invalid(cam, "camera.fx");
+  cam.fx = 1.01 * 640.0 / 1.844e18;
+  EXPECT_NO_THROW(cam.validate());
+  // The message gives the least focal length and the value.
+  cam = test_camera();
+  cam.fx = 1e-40;
+  try {
+    cam.validate();
+    FAIL() << "expected InputError";
+  } catch (const pbve::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("at least 1.74349e-16"), std::string::npos) << what;
+    EXPECT_NE(what.find("got 1e-40"), std::string::npos) << what;
+  }
+  // A long focal length only makes the components small: no bound.
+  cam = test_camera();
+  cam.fx = cam.fy = 1e300;
+  EXPECT_NO_THROW(cam.validate());
+}
+
 }  // namespace

@@ -354,6 +354,21 @@ TEST(Renderer, RejectsMismatchedInput) {
   EXPECT_NO_THROW(renderer.render(frame, v, v, observed, frame));
 }
 
+// A focal length so short that the rays through the image's edges have direction components
+// beyond Embree's range (1.844e18) is refused when the Renderer is made: render() aborted the
+// process inside Embree.
+TEST(Renderer, RefusesAFocalLengthTooShortForItsRays) {
+  const Mesh sphere = test::icosphere(2, 0.25);
+  for (const double f : {1e-40, 1e-20}) {  // components of 1.6e42 (inf in float) and 1.6e22
+    Camera camera = test_camera();
+    camera.fx = f;
+    EXPECT_THROW(Renderer(sphere, camera), InputError) << f;
+    camera = test_camera();
+    camera.fy = f;
+    EXPECT_THROW(Renderer(sphere, camera), InputError) << f;
+  }
+}
+
 TEST(Renderer, SyntheticFootageRejectsMismatchedInput) {
   const Camera camera = test_camera();
   const Mesh sphere = test::icosphere(2, 0.25);

@@ -99,14 +99,36 @@ Shape plates_scene() {
 }
 
 TEST(Visibility, ACameraThatIsNotValidIsAnErrorNotAnAbort) {
-  // A zero or non-finite focal length gives rays Embree aborts the process on.
+  // A zero or non-finite focal length gives rays Embree aborts the process on, and so does one
+  // so short that the rays through the image's edges have components beyond 1.844e18 (320.5 /
+  // 1e-20 = 3.2e22 is finite in float, but beyond Embree's range).
   const Shape s = plates_scene();
   RayScene scene(s.vertices, s.triangles);
-  for (const double fx : {0.0, std::nan("")}) {
+  for (const double fx : {0.0, std::nan(""), 1e-40, 1e-20, 0.99 * 320.5 / 1.844e18}) {
     Camera camera;
     camera.fx = fx;
     EXPECT_THROW(compute_visibility(scene, camera), InputError) << fx;
     EXPECT_THROW(scene.cast_primary(camera, 1), InputError) << fx;
+  }
+  // A principal point far outside the image (allowed here: a camera for a part of an image)
+  // moves the edges as far from it.
+  Camera far;
+  far.cx = 1e30;
+  EXPECT_THROW(scene.cast_primary(far, 1), InputError);
+  EXPECT_THROW(compute_visibility(scene, far), InputError);
+  // Just above the least focal length (the default camera's left edge is 320.5 px from its
+  // principal point) every ray through the image is cast. Only column 320 (u = cx) looks ahead;
+  // the others run almost along the image plane and miss: the back plate spans rows 180 to 300.
+  Camera shortest;
+  shortest.fx = 1.01 * 320.5 / 1.844e18;
+  const PrimaryHits hits = scene.cast_primary(shortest, 1);
+  EXPECT_GT(hits.hit_count(), 100);
+  for (int y = 0; y < hits.height; ++y) {
+    for (int x = 0; x < hits.width; ++x) {
+      if (hits.triangle[static_cast<size_t>(y) * hits.width + x] >= 0) {
+        ASSERT_EQ(x, 320) << y;
+      }
+    }
   }
   EXPECT_THROW(scene.cast_primary(Camera{}, 1 << 20), InputError);  // too many rays
   Triangles bad = s.triangles;

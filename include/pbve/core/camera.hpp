@@ -16,8 +16,14 @@ struct Camera {
   int width = 640;    ///< image width, pixels
   int height = 480;   ///< image height, pixels
 
-  /// Throws InputError when a value is not finite or not positive, or the principal point
-  /// lies outside the image.
+  /// Throws InputError when a value is not finite or not positive, the principal point
+  /// lies outside the image, or a focal length is so short that the rays through the image's
+  /// edges cannot be cast: the ray through pixel (u, v) has direction ((u - cx) / fx,
+  /// (v - cy) / fy, 1), and ray casting (Embree, single precision) refuses components beyond
+  /// 1.844e18, so fx must be at least max(cx + 0.5, width - 0.5 - cx) / 1.844e18 (a bound of at
+  /// most width / 1.844e18, 3.5e-16 for 640 pixels), fy likewise with cy and height. There is no
+  /// upper bound: a long focal length only makes the components small. The error's key() names
+  /// the field ("camera.fx").
   void validate() const;
 
   /// Projects a camera-frame point (z > 0) to pixel coordinates.

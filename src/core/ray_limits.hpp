@@ -1,0 +1,26 @@
+#pragma once
+// Internal: the largest ray components pbve's ray casting (Embree 3, single precision) accepts,
+// shared by Camera::validate() and the primary-ray casts of src/visibility.
+
+#include <algorithm>
+#include <cmath>
+
+namespace pbve::detail {
+
+/// Largest magnitude of a ray origin or direction component that Embree traces. Its traversal
+/// asserts |component| <= FLT_LARGE = 1.844e18 for every ray (Ray::valid() in its
+/// kernels/common/ray.h; about sqrt(FLT_MAX) / 10, so that the products and sums of its box and
+/// triangle tests stay finite in float) and aborts the process when a ray fails it: a NaN or
+/// infinite component, and also a finite float above this bound (a direction of 1e20 aborts as
+/// an infinite one does).
+inline constexpr double max_ray_component = 1.844e18;
+
+/// The largest |u - c| over the pixel coordinates u in [-0.5, size - 0.5] along one image axis
+/// with principal point c (pixels): the ray direction component (u - c) / f is at most this over
+/// f in magnitude over the image. Every sample pbve casts, supersampled or not, lies inside its
+/// pixel, so within this range. At most `size` when c lies in the image.
+inline double farthest_edge_px(double c, int size) {
+  return std::max(std::abs(c + 0.5), std::abs(size - 0.5 - c));
+}
+
+}  // namespace pbve::detail
