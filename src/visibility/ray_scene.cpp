@@ -1,7 +1,10 @@
 #include "pbve/visibility/ray_scene.hpp"
 
+#include <atomic>
+#include <cmath>
 #include <limits>
 #include <mutex>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 
@@ -62,6 +65,37 @@ void copy_positions(const Vertices& vertices, float* buffer) {
                         for (int d = 0; d < 3; ++d)
                           buffer[3 * i + d] = static_cast<float>(vertices(i, d));
                     });
+}
+
+// Rays are checked while their packets are filled: a packet holding a ray Embree would abort on
+// (detail::ray_component_ok() false) is skipped and its index kept here, the lowest of them, so
+// that the query then names the same ray however the packets were scheduled.
+void record_min(std::atomic<Eigen::Index>& lowest, Eigen::Index p) {
+  Eigen::Index seen = lowest.load(std::memory_order_relaxed);
+  while (p < seen && !lowest.compare_exchange_weak(seen, p, std::memory_order_relaxed)) {
+  }
+}
+
+bool row_ok(const Eigen::Ref<const Eigen::MatrixX3d>& m, Eigen::Index i) {
+  return detail::ray_component_ok(m(i, 0)) && detail::ray_component_ok(m(i, 1)) &&
+         detail::ray_component_ok(m(i, 2));
+}
+
+// `what` followed by the row, e.g. "intersect(): ray 17: origin (nan, 0, 0) has a component
+// ...", for a row failing row_ok().
+InputError bad_ray(const std::string& what, const Eigen::Ref<const Eigen::MatrixX3d>& m,
+                   Eigen::Index i) {
+  std::ostringstream s;
+  s << what << " (" << m(i, 0) << ", " << m(i, 1) << ", " << m(i, 2)
+    << ") has a component that is not a number of magnitude at most " << detail::max_ray_component
+    << ", the largest ray casting accepts";
+  return InputError(s.str());
+}
+
+// Embree aborts on a NaN ray parameter too (infinities are fine).
+void check_t(const char* function, const char* name, double t) {
+  if (std::isnan(t))
+    throw InputError(std::string(function) + ": " + name + " must be a number, got nan");
 }
 
 }  // namespace
@@ -183,10 +217,13 @@ std::vector<RayHit> RayScene::intersect(const Eigen::Ref<const Eigen::MatrixX3d>
   if (origins.rows() != directions.rows())
     throw InputError("intersect(): " + std::to_string(origins.rows()) + " origins but " +
                      std::to_string(directions.rows()) + " directions");
+  check_t("intersect()", "t_min", t_min);
+  check_t("intersect()", "t_max", t_max);
   const Eigen::Index n = origins.rows();
   std::vector<RayHit> hits(static_cast<size_t>(n));
   const float tn = static_cast<float>(t_min);
   const float tf = static_cast<float>(std::min<double>(t_max, std::numeric_limits<float>::max()));
+  std::atomic<Eigen::Index> first_bad{n};  // lowest index of a packet with a refused ray
   tbb::parallel_for(tbb::blocked_range<Eigen::Index>(0, (n + 15) / 16, 16),
                     [&](const tbb::blocked_range<Eigen::Index>& r) {
                       RTCIntersectContext context;
@@ -194,15 +231,23 @@ std::vector<RayHit> RayScene::intersect(const Eigen::Ref<const Eigen::MatrixX3d>
                       alignas(64) RTCRayHit16 packet;
                       alignas(64) int valid[16];
                       for (Eigen::Index p = r.begin(); p != r.end(); ++p) {
+                        bool ok = true;
                         for (int k = 0; k < 16; ++k) {
                           const Eigen::Index i = std::min<Eigen::Index>(16 * p + k, n - 1);
                           valid[k] = (16 * p + k < n) ? -1 : 0;
-                          packet.ray.org_x[k] = static_cast<float>(origins(i, 0));
-                          packet.ray.org_y[k] = static_cast<float>(origins(i, 1));
-                          packet.ray.org_z[k] = static_cast<float>(origins(i, 2));
-                          packet.ray.dir_x[k] = static_cast<float>(directions(i, 0));
-                          packet.ray.dir_y[k] = static_cast<float>(directions(i, 1));
-                          packet.ray.dir_z[k] = static_cast<float>(directions(i, 2));
+                          const double ox = origins(i, 0), oy = origins(i, 1), oz = origins(i, 2);
+                          const double dx = directions(i, 0), dy = directions(i, 1),
+                                       dz = directions(i, 2);
+                          // Bitwise &: six comparisons without branches.
+                          ok = ok & detail::ray_component_ok(ox) & detail::ray_component_ok(oy) &
+                               detail::ray_component_ok(oz) & detail::ray_component_ok(dx) &
+                               detail::ray_component_ok(dy) & detail::ray_component_ok(dz);
+                          packet.ray.org_x[k] = static_cast<float>(ox);
+                          packet.ray.org_y[k] = static_cast<float>(oy);
+                          packet.ray.org_z[k] = static_cast<float>(oz);
+                          packet.ray.dir_x[k] = static_cast<float>(dx);
+                          packet.ray.dir_y[k] = static_cast<float>(dy);
+                          packet.ray.dir_z[k] = static_cast<float>(dz);
                           packet.ray.tnear[k] = tn;
                           packet.ray.tfar[k] = tf;
                           packet.ray.time[k] = 0.0f;
@@ -210,6 +255,10 @@ std::vector<RayHit> RayScene::intersect(const Eigen::Ref<const Eigen::MatrixX3d>
                           packet.ray.id[k] = static_cast<unsigned>(k);
                           packet.ray.flags[k] = 0;
                           packet.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+                        }
+                        if (!ok) {  // Embree would abort: skip the packet, throw below
+                          record_min(first_bad, p);
+                          continue;
                         }
                         rtcIntersect16(valid, m_impl->scene, &context, &packet);
                         for (int k = 0; k < 16 && 16 * p + k < n; ++k) {
@@ -222,14 +271,23 @@ std::vector<RayHit> RayScene::intersect(const Eigen::Ref<const Eigen::MatrixX3d>
                         }
                       }
                     });
+  if (first_bad.load() < n) {
+    for (Eigen::Index i = 16 * first_bad.load(); i < n; ++i) {
+      const std::string ray = "intersect(): ray " + std::to_string(i);
+      if (!row_ok(origins, i)) throw bad_ray(ray + ": origin", origins, i);
+      if (!row_ok(directions, i)) throw bad_ray(ray + ": direction", directions, i);
+    }
+  }
   return hits;
 }
 
 std::vector<std::uint8_t> RayScene::occluded_from_origin(
     const Eigen::Ref<const Eigen::MatrixX3d>& targets, double t_max) const {
+  check_t("occluded_from_origin()", "t_max", t_max);
   const Eigen::Index n = targets.rows();
   std::vector<std::uint8_t> result(static_cast<size_t>(n), 0);
   const float tf = static_cast<float>(t_max);
+  std::atomic<Eigen::Index> first_bad{n};  // lowest index of a packet with a refused ray
   tbb::parallel_for(tbb::blocked_range<Eigen::Index>(0, (n + 15) / 16, 16),
                     [&](const tbb::blocked_range<Eigen::Index>& r) {
                       RTCIntersectContext context;
@@ -237,13 +295,17 @@ std::vector<std::uint8_t> RayScene::occluded_from_origin(
                       alignas(64) RTCRay16 packet;
                       alignas(64) int valid[16];
                       for (Eigen::Index p = r.begin(); p != r.end(); ++p) {
+                        bool ok = true;
                         for (int k = 0; k < 16; ++k) {
                           const Eigen::Index i = std::min<Eigen::Index>(16 * p + k, n - 1);
                           valid[k] = (16 * p + k < n) ? -1 : 0;
+                          const double x = targets(i, 0), y = targets(i, 1), z = targets(i, 2);
+                          ok = ok & detail::ray_component_ok(x) & detail::ray_component_ok(y) &
+                               detail::ray_component_ok(z);
                           packet.org_x[k] = packet.org_y[k] = packet.org_z[k] = 0.0f;
-                          packet.dir_x[k] = static_cast<float>(targets(i, 0));
-                          packet.dir_y[k] = static_cast<float>(targets(i, 1));
-                          packet.dir_z[k] = static_cast<float>(targets(i, 2));
+                          packet.dir_x[k] = static_cast<float>(x);
+                          packet.dir_y[k] = static_cast<float>(y);
+                          packet.dir_z[k] = static_cast<float>(z);
                           packet.tnear[k] = 0.0f;
                           packet.tfar[k] = tf;
                           packet.time[k] = 0.0f;
@@ -251,11 +313,20 @@ std::vector<std::uint8_t> RayScene::occluded_from_origin(
                           packet.id[k] = static_cast<unsigned>(k);
                           packet.flags[k] = 0;
                         }
+                        if (!ok) {  // Embree would abort: skip the packet, throw below
+                          record_min(first_bad, p);
+                          continue;
+                        }
                         rtcOccluded16(valid, m_impl->scene, &context, &packet);
                         for (int k = 0; k < 16 && 16 * p + k < n; ++k)
                           result[static_cast<size_t>(16 * p + k)] = packet.tfar[k] < 0.0f;
                       }
                     });
+  if (first_bad.load() < n) {
+    for (Eigen::Index i = 16 * first_bad.load(); i < n; ++i)
+      if (!row_ok(targets, i))
+        throw bad_ray("occluded_from_origin(): target " + std::to_string(i), targets, i);
+  }
   return result;
 }
 

@@ -1,6 +1,9 @@
 // RayScene: hits, barycentrics, refit and rebuild, errors.
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
+#include <string>
 
 #include <gtest/gtest.h>
 
@@ -110,6 +113,61 @@ TEST(RayScene, RejectsBadInput) {
   out_of_range(0, 1) = 17;
   EXPECT_THROW(RayScene(plate.vertices, out_of_range), InputError);
   EXPECT_THROW(scene.cast_primary(small_camera(), 0), InputError);
+}
+
+// The InputError message of `query()`, or "" when it does not throw one.
+template <class Query>
+std::string input_error(const Query& query) {
+  try {
+    query();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Embree aborts the process on a ray with a component that is NaN, infinite or finite beyond
+// 1.844e18, and on a NaN ray parameter: the queries refuse them, naming the query, the ray and
+// its value, and answer the next valid query as before.
+TEST(RayScene, RaysEmbreeCannotTraceAreAnErrorNotAnAbort) {
+  const auto plate = make_plate({-1.0, -1.0, 2.0}, {2.0, 0.0, 0.0}, {0.0, 2.0, 0.0}, 2, 2);
+  RayScene scene(plate.vertices, plate.triangles);
+  const int n = 40;  // three packets of 16
+  const Eigen::MatrixX3d origins = Eigen::MatrixX3d::Zero(n, 3);
+  Eigen::MatrixX3d directions(n, 3);
+  directions.rowwise() = Eigen::RowVector3d(0.1, 0.2, 1.0);  // hits at t = 2
+  const Eigen::MatrixX3d targets = 4.0 * directions;         // behind the plate
+  const double inf = std::numeric_limits<double>::infinity();
+  for (const double bad : {std::nan(""), inf, -inf, 1e20, -2e18}) {
+    SCOPED_TRACE(bad);
+    Eigen::MatrixX3d o = origins, d = directions, t = targets;
+    o(17, 1) = bad;
+    o(35, 0) = bad;  // a later one: the first is named
+    std::string what = input_error([&] { scene.intersect(o, directions); });
+    EXPECT_NE(what.find("intersect(): ray 17: origin (0, "), std::string::npos) << what;
+    d(33, 2) = bad;
+    what = input_error([&] { scene.intersect(origins, d); });
+    EXPECT_NE(what.find("intersect(): ray 33: direction (0.1, 0.2, "), std::string::npos) << what;
+    t(21, 0) = bad;
+    what = input_error([&] { scene.occluded_from_origin(t, 0.999); });
+    EXPECT_NE(what.find("occluded_from_origin(): target 21 ("), std::string::npos) << what;
+  }
+  EXPECT_THROW(scene.intersect(origins, directions, std::nan("")), InputError);
+  EXPECT_THROW(scene.intersect(origins, directions, 0.0, std::nan("")), InputError);
+  EXPECT_THROW(scene.occluded_from_origin(targets, std::nan("")), InputError);
+  // Components up to 1.844e18 are traced; infinite t_max is the default.
+  Eigen::MatrixX3d far = directions;
+  far.row(3) << 1.8e18, 0.0, 1.0;  // runs beside the plate
+  const std::vector<RayHit> hits = scene.intersect(origins, far, 0.0, inf);
+  ASSERT_EQ(hits.size(), size_t(n));
+  EXPECT_EQ(hits[3].triangle, -1);
+  for (int i = 0; i < n; ++i) {
+    if (i != 3) {
+      EXPECT_NEAR(hits[i].t, 2.0f, 1e-5f) << i;
+    }
+  }
+  const std::vector<std::uint8_t> occluded = scene.occluded_from_origin(targets, 0.999);
+  EXPECT_EQ(std::count(occluded.begin(), occluded.end(), 1), n);
 }
 
 }  // namespace

@@ -92,6 +92,9 @@ class RayScene {
 
   /// First hits of arbitrary rays: `origins` and `directions` are #R by 3 (camera frame);
   /// hits with t in [t_min, t_max] (in units of the direction's length) are reported.
+  /// Throws InputError when the numbers of rows differ, t_min or t_max is NaN, or a component
+  /// of an origin or direction is not a number of magnitude at most 1.844e18 (the largest
+  /// Embree traces; the message names the first such ray).
   std::vector<RayHit> intersect(const Eigen::Ref<const Eigen::MatrixX3d>& origins,
                                 const Eigen::Ref<const Eigen::MatrixX3d>& directions,
                                 double t_min = 0.0,
@@ -99,7 +102,8 @@ class RayScene {
 
   /// For rays from the camera centre (the origin) towards `targets` (#R by 3): 1 where
   /// something is hit with t in (0, t_max), t = 1 being the target itself. t_max slightly
-  /// below 1 asks "is the target hidden?".
+  /// below 1 asks "is the target hidden?". Throws InputError when t_max is NaN or a component
+  /// of a target is not a number of magnitude at most 1.844e18 (naming the first such target).
   std::vector<std::uint8_t> occluded_from_origin(const Eigen::Ref<const Eigen::MatrixX3d>& targets,
                                                  double t_max) const;
 
