@@ -122,6 +122,12 @@ Mesh make_icosphere(double radius, int subdivisions) {
 }
 
 Mesh make_figurine(double height, int rings, int segments) {
+  // Fewer rings leave no ring of vertices between the poles (the triangles then index vertices
+  // that do not exist); fewer segments make rings of one or two vertices (flat triangles) or none.
+  if (rings < 2)
+    throw InputError("make_figurine: rings must be at least 2, got " + std::to_string(rings));
+  if (segments < 3)
+    throw InputError("make_figurine: segments must be at least 3, got " + std::to_string(segments));
   // Profile radius over t in [0, 1] (feet at t = 0, top of the head at t = 1).
   auto radius = [&](double t) {
     const double body = 0.24 * std::sqrt(std::max(0.0, 1.0 - std::pow((t - 0.33) / 0.36, 2)));

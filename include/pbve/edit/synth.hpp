@@ -24,7 +24,10 @@ Mesh make_box_mesh(double width, double height, double thickness);
 Mesh make_icosphere(double radius, int subdivisions);
 /// A closed character-like figurine standing on y = 0 and extending up to y = -height (the
 /// camera's y axis points down): a surface of revolution with a round belly and a head above a
-/// neck, its front bulged along -z (towards a camera on -z of it).
+/// neck, its front bulged along -z (towards a camera on -z of it). The profile is cut into
+/// `rings` bands from the feet to the head: rings - 1 rings of `segments` vertices between two
+/// poles, 2 + (rings - 1) x segments vertices and 2 x (rings - 1) x segments triangles. Throws
+/// InputError for rings < 2 or segments < 3 (no closed surface).
 Mesh make_figurine(double height, int rings = 48, int segments = 48);
 
 /// Colour (BGR, 0..255) of the object's surface at a mesh-space point with a mesh-space normal.
