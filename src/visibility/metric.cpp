@@ -27,8 +27,8 @@ ViolationMetric violation_metric(const RayScene& simulated, const Camera& camera
   if (!interior.empty() && interior.size() != nf)
     throw InputError("interior has " + std::to_string(interior.size()) + " entries, the mesh has " +
                      std::to_string(nf) + " triangles");
-  if (options.supersample < 1)
-    throw InputError("supersample must be at least 1, got " + std::to_string(options.supersample));
+  detail::check_ray_camera(camera, "violation_metric()");
+  detail::check_primary_rays(camera, options.supersample, "violation_metric()");
 
   // Per triangle: 0 = fine, 1 = violating, 2 = interior (one lookup per ray).
   std::vector<std::uint8_t> kind(nf, 0);

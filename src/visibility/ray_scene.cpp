@@ -331,17 +331,8 @@ std::vector<std::uint8_t> RayScene::occluded_from_origin(
 }
 
 PrimaryHits RayScene::cast_primary(const Camera& camera, int supersample) const {
-  if (supersample < 1)
-    throw InputError("supersample must be at least 1, got " + std::to_string(supersample));
-  detail::check_ray_camera(camera);
-  const long long samples = static_cast<long long>(camera.width) * supersample *
-                            static_cast<long long>(camera.height) * supersample;
-  if (static_cast<long long>(camera.width) * supersample > std::numeric_limits<int>::max() ||
-      static_cast<long long>(camera.height) * supersample > std::numeric_limits<int>::max() ||
-      samples > (1LL << 34))
-    throw InputError("supersample " + std::to_string(supersample) + " of a " +
-                     std::to_string(camera.width) + "x" + std::to_string(camera.height) +
-                     " image gives too many rays");
+  detail::check_ray_camera(camera, "cast_primary()");
+  detail::check_primary_rays(camera, supersample, "cast_primary()");
   PrimaryHits hits;
   hits.supersample = supersample;
   hits.width = camera.width * supersample;

@@ -6,6 +6,7 @@
 #include <limits>
 #include <memory>
 #include <sstream>
+#include <string>
 
 #include <embree3/rtcore.h>
 #include <tbb/blocked_range2d.h>
@@ -41,24 +42,51 @@ namespace detail {
 /// finite principal point (which may lie outside the image: a camera for a part of it), a
 /// positive image size, and ray direction components over the image within
 /// max_ray_component (see Camera::validate()). Embree aborts the process on a ray outside
-/// these (its assertions are on).
-inline void check_ray_camera(const Camera& camera) {
+/// these (its assertions are on). `function` names the caller in the message.
+inline void check_ray_camera(const Camera& camera, const char* function) {
+  const auto message = [&](const std::string& what) {
+    std::ostringstream s;
+    s << function << ": " << what << " (fx " << camera.fx << ", fy " << camera.fy << ", cx "
+      << camera.cx << ", cy " << camera.cy << ", " << camera.width << "x" << camera.height << ")";
+    return s.str();
+  };
   if (!(camera.fx > 0.0) || !(camera.fy > 0.0) || !std::isfinite(camera.fx) ||
       !std::isfinite(camera.fy) || !std::isfinite(camera.cx) || !std::isfinite(camera.cy) ||
       camera.width <= 0 || camera.height <= 0)
     throw InputError(
-        "the camera needs positive finite focal lengths, a finite principal point "
-        "and a positive image size");
+        message("the camera needs positive finite focal lengths, a finite principal point and a "
+                "positive image size"));
   const double slope = std::max(farthest_edge_px(camera.cx, camera.width) / camera.fx,
                                 farthest_edge_px(camera.cy, camera.height) / camera.fy);
   if (!(slope <= max_ray_component)) {
     std::ostringstream s;
     s << "the camera's rays through the image's edges would have direction components up to "
-      << slope << ", beyond the " << max_ray_component << " ray casting accepts (fx " << camera.fx
-      << ", fy " << camera.fy << ", cx " << camera.cx << ", cy " << camera.cy << ", "
-      << camera.width << "x" << camera.height << ")";
-    throw InputError(s.str());
+      << slope << ", beyond the " << max_ray_component << " ray casting accepts";
+    throw InputError(message(s.str()));
   }
+}
+
+/// Most rays one primary-ray query casts: 2^34, about 1.7e10 (cast_primary() would store 16
+/// bytes per ray, 256 GiB; violation_metric() stores nothing per ray, but would cast for minutes).
+inline constexpr long long max_primary_rays = 1LL << 34;
+
+/// Throws InputError unless `supersample` samples per pixel along each axis of `camera`'s
+/// image (already checked by check_ray_camera()) can be cast by for_each_primary(): supersample
+/// >= 1, both sides of the sample grid (width x supersample, height x supersample) within int,
+/// and at most max_primary_rays samples in all. `function` names the caller in the message.
+inline void check_primary_rays(const Camera& camera, int supersample, const char* function) {
+  if (supersample < 1)
+    throw InputError(std::string(function) + ": supersample must be at least 1, got " +
+                     std::to_string(supersample));
+  const long long w = static_cast<long long>(camera.width) * supersample;
+  const long long h = static_cast<long long>(camera.height) * supersample;
+  // The product is formed only once both factors are known to be within int: no overflow.
+  if (w > std::numeric_limits<int>::max() || h > std::numeric_limits<int>::max() ||
+      w * h > max_primary_rays)
+    throw InputError(
+        std::string(function) + ": supersample " + std::to_string(supersample) + " of a " +
+        std::to_string(camera.width) + "x" + std::to_string(camera.height) +
+        " image gives too many rays (at most 2^34 = " + std::to_string(max_primary_rays) + ")");
 }
 
 /// Side length (in samples) of the square tiles processed as one parallel task.

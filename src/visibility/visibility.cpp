@@ -69,7 +69,7 @@ void visibility_impl(const RayScene::Impl* impl, const Vertices& vertices,
                      const Triangles& triangles, const Camera& camera,
                      const VisibilityOptions& options, TriangleVisibility& result) {
   check_options(options);
-  detail::check_ray_camera(camera);
+  detail::check_ray_camera(camera, "compute_visibility()");
   const Eigen::Index nf = triangles.rows();
   // Every entry is written below; resizing to the same size keeps the buffers.
   result.visible.resize(static_cast<size_t>(nf));

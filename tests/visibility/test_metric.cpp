@@ -1,6 +1,8 @@
 // The violation metric against analytic projected areas.
 
 #include <cmath>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -173,6 +175,62 @@ TEST(ViolationMetric, RejectsWrongSizes) {
   RayScene scene(plate.vertices, plate.triangles);
   EXPECT_THROW(violation_metric(scene, Camera{}, {1}, {}), InputError);
   EXPECT_THROW(violation_metric(scene, Camera{}, {1, 1}, {0}), InputError);
+}
+
+// The checks cast_primary() makes: a camera whose rays Embree aborts on, and more rays than the
+// limit (2^34) or a sample grid wider than int. Before them, a zero focal length aborted the
+// process, supersample 3355444 (640 x 3355444 > INT_MAX) overflowed the grid's width and gave 0
+// rays and 0% violation, and supersample 1 << 20 set out to cast 3.4e17 rays (years).
+TEST(ViolationMetric, RefusesCamerasAndSupersamplingItCannotCast) {
+  const Shape plate = make_plate({-0.4, 0.3, 2.0}, {0.8, 0.0, 0.0}, {0.0, -0.6, 0.0}, 1, 1);
+  RayScene scene(plate.vertices, plate.triangles);
+  const std::vector<std::uint8_t> observed(2, 1);
+  // The InputError message of violation_metric(), or "accepted".
+  const auto message = [&](const Camera& camera, int supersample) -> std::string {
+    MetricOptions options;
+    options.supersample = supersample;
+    try {
+      violation_metric(scene, camera, observed, {}, options);
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return "accepted";
+  };
+  Camera empty;
+  empty.width = 0;
+  std::vector<Camera> bad_cameras = {empty};
+  for (const double fx : {0.0, std::nan(""), 1e-40}) {
+    bad_cameras.emplace_back();
+    bad_cameras.back().fx = fx;
+  }
+  for (const Camera& camera : bad_cameras) {
+    const std::string what = message(camera, 1);
+    EXPECT_EQ(what.rfind("violation_metric(): the camera", 0), 0u) << what;
+  }
+  for (const int supersample : {0, -3})
+    EXPECT_EQ(
+        message(Camera{}, supersample),
+        "violation_metric(): supersample must be at least 1, got " + std::to_string(supersample));
+  for (const int supersample : {3355444, 1 << 30, 1 << 20, 237}) {
+    const std::string what = message(Camera{}, supersample);
+    EXPECT_EQ(what.rfind("violation_metric(): supersample " + std::to_string(supersample) +
+                             " of a 640x480 image gives too many rays",
+                         0),
+              0u)
+        << what;
+  }
+  // 2^34 rays in all: a 1x1 image takes supersample 2^17, not one more.
+  Camera one_pixel;
+  one_pixel.width = one_pixel.height = 1;
+  one_pixel.cx = one_pixel.cy = 0.0;
+  MetricOptions options;
+  options.supersample = (1 << 17) + 1;
+  EXPECT_THROW(violation_metric(scene, one_pixel, observed, {}, options), InputError);
+  // Within the limits the metric still counts: the plate covers 240 x 180 px of the image.
+  options.supersample = 2;
+  const ViolationMetric m = violation_metric(scene, Camera{}, observed, {}, options);
+  EXPECT_EQ(m.rays_cast, 4 * 640 * 480);
+  EXPECT_NEAR(m.object_area_px, 240.0 * 180.0, 240.0 + 180.0);
 }
 
 }  // namespace

@@ -12,7 +12,9 @@ namespace pbve {
 
 /// Settings of violation_metric().
 struct MetricOptions {
-  /// Primary rays per pixel along each axis (supersample^2 rays per pixel).
+  /// Primary rays per pixel along each axis (supersample^2 rays per pixel), at least 1. At most
+  /// 2^34 (1.7e10) rays in all: width x height x supersample^2 <= 2^34, which allows up to 236
+  /// at 640x480 (minutes of casting) and 91 at 1920x1080.
   int supersample = 1;
   /// Also count samples whose first hit is the back side of a triangle as violating (for open
   /// surfaces such as a single-sheet cloth, whose back side was never observed). Off by
@@ -37,9 +39,16 @@ struct ViolationMetric {
 /// Casts one primary ray per (sub-)pixel against `simulated` (the simulated mesh, camera
 /// frame) and measures the area of violating triangles.
 ///
+/// @param camera            intrinsics and image size; the principal point may lie outside the
+///                          image, but the rays must be castable (as for Camera::validate())
 /// @param observed_in_input #F, v_j: 1 when triangle j is observed (visible) in the input frame
 /// @param interior          #F, 1 for interior (fracture) faces, or empty for none
-/// Throws InputError when a non-empty vector does not have #F entries.
+/// Throws InputError when a non-empty vector does not have #F entries, for a camera whose rays
+/// cannot be cast (a focal length that is not positive and finite, or so short that the rays
+/// through the image's edges have direction components beyond 1.844e18; a non-finite principal
+/// point; an empty image), and for options.supersample < 1 or above the limit of
+/// MetricOptions::supersample (2^34 rays; width x supersample and height x supersample within
+/// int).
 ViolationMetric violation_metric(const RayScene& simulated, const Camera& camera,
                                  const std::vector<std::uint8_t>& observed_in_input,
                                  const std::vector<std::uint8_t>& interior,

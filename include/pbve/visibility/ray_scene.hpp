@@ -109,6 +109,8 @@ class RayScene {
 
   /// One primary ray per (sub-)pixel of `camera` (camera at the origin): the first hit
   /// triangle, barycentrics and depth. `supersample` >= 1 samples per pixel along each axis.
+  /// Throws InputError for a camera whose rays cannot be cast (see violation_metric()) and for
+  /// more than 2^34 samples (width x height x supersample^2; each side within int).
   PrimaryHits cast_primary(const Camera& camera, int supersample = 1) const;
 
   /// Implementation access for pbve's own sources (opaque outside them).
