@@ -59,11 +59,12 @@ enum class LinearSolver {
   /// conjugate gradients with a 3x3 block-Jacobi preconditioner (no factorization: least
   /// memory, but the iteration count grows with the resolution)
   iterative,
-  /// conjugate gradients preconditioned by one smoothed-aggregation multigrid V-cycle (the
-  /// aggregates and prolongators built once per model from the springs, the coarse matrices
+  /// conjugate gradients preconditioned by one algebraic multigrid V-cycle (coarse levels built
+  /// once per model from the springs and the rest positions: C/F splitting with linear
+  /// interpolation, smoothed aggregation where that does not coarsen; the coarse matrices
   /// formed once per substep): setup and iterations do work linear in the number of nodes
   /// (the iteration count grows where the cloth's bending outweighs inertia at the grid scale:
-  /// x1.5 from 4k to 16k vertices of the bench cloth, x1.7 from 16k to 65k), and a finest
+  /// x1.25 from 4k to 16k vertices of the bench cloth, x1.6 from 16k to 65k), and a finest
   /// level of 2048 nodes or more, a coarser one of 1024 or more, is smoothed by two threads,
   /// as are the Galerkin products and restrictions from such a level (same results with any
   /// number of threads).
