@@ -5,14 +5,15 @@
 //
 // Everything that depends only on the topology is built once per model and shared by clones
 // (MultigridHierarchy): the coarse spaces of every level, found from the rest springs'
-// stiffness between free nodes - the finest by C/F splitting when the nodes' rest positions
-// are given (a quarter of the nodes kept, the others interpolated linearly from them), every
-// other by smoothed aggregation (one translation per aggregate and direction, smoothed once
-// with the stiffness graph) - the coarse matrices' patterns and the plans of their Galerkin
-// products. A matrix then costs only its numeric setup (Multigrid::setup(): one pass
-// over each level's Galerkin plan, the inverses of the diagonal blocks and a dense LL^T of
-// the coarsest level, a few hundred unknowns at most), and a V-cycle costs a few
-// matrix-vector products: both linear in the number of nodes.
+// stiffness between free nodes - by C/F splitting when the nodes' rest positions are given
+// (about a quarter of a level's nodes kept, with their positions, the others interpolated
+// linearly from them), on every level where that coarsens, and below that or without positions
+// by smoothed aggregation (one translation per aggregate and direction, smoothed once with the
+// stiffness graph) - the coarse matrices' patterns and the plans of their Galerkin products. A
+// matrix then costs only its numeric setup (Multigrid::setup(): one pass over each level's Galerkin
+// plan, the inverses of the diagonal blocks and a dense LL^T of the coarsest level, a few hundred
+// unknowns at most), and a V-cycle costs a few matrix-vector products: both linear in the number of
+// nodes.
 
 #include <memory>
 #include <vector>
@@ -32,8 +33,9 @@ class MultigridHierarchy {
   /// strength: n x n, symmetric, off-diagonal entries >= 0 (the stiffness connecting two free
   /// nodes, N/m), pattern within the pattern's blocks. Throws std::logic_error if the pattern
   /// is not made of full 3x3 blocks.
-  /// rest: n x 3, the nodes' rest positions, or empty; with them, the finest level coarsens by
-  /// C/F splitting with affine interpolation, else (and below it) by smoothed aggregation.
+  /// rest: n x 3, the nodes' rest positions, or empty; with them, levels coarsen by C/F
+  /// splitting with affine interpolation while that coarsens, then (and without them) by
+  /// smoothed aggregation.
   MultigridHierarchy(const Eigen::SparseMatrix<double>& pattern,
                      const Eigen::SparseMatrix<double>& strength,
                      const Eigen::MatrixX3d& rest = Eigen::MatrixX3d());
