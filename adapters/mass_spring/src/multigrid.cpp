@@ -6,8 +6,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include <Eigen/Cholesky>
 #include <Eigen/LU>
-#include <Eigen/QR>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
