@@ -2,14 +2,16 @@
 // 4k and 16k vertices (and at 33k and 65k, to follow the growth further), and one step_vjp
 // relative to one step; the same for the thin two-layer board of example 1 (cloth with layer
 // ties, 3 substeps, swung by its held edge) at 494, ~1k, 4k and 16k vertices, plus its
-// linearization (linearize_step, jvp, vjp). For comparisons, environment variables override
-// parameters: SUBS (substeps), NTOL (newton_tolerance), SOLVER (direct, iterative or multigrid
-// instead of the automatic linear solver choice), FRAMES (steps before the timed cloth step),
-// BEND (the cloth's bend_stiffness, N m).
+// linearization (linearize_step, jvp, vjp); and the multigrid solver alone on a flat sheet's
+// Newton matrix at 1k to 65k vertices, with and without bending (BM_MultigridSheet). For
+// comparisons, environment variables override parameters: SUBS (substeps), NTOL (newton_tolerance),
+// SOLVER (direct, iterative or multigrid instead of the automatic linear solver choice), FRAMES
+// (steps before the timed cloth step), BEND (the cloth's bend_stiffness, N m).
 
 #include <cmath>
 #include <cstdlib>
 #include <memory>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -17,6 +19,7 @@
 
 #include <benchmark/benchmark.h>
 
+#include "../adapters/mass_spring/src/multigrid.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/edit/synth.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
@@ -127,6 +130,159 @@ void BM_ClothVjpReplay(benchmark::State& state) {
     benchmark::DoNotOptimize(sim.step_vjp(s0, in, g));
   }
   state.counters["vertices"] = sim.num_vertices();
+}
+
+// The multigrid-preconditioned CG alone, on one family of linear systems at growing
+// resolution: the Newton matrix of a flat n x n cloth at rest (1 m, the cloth preset's density
+// and stretch and shear moduli, springs k = modulus area / L0^2; substep h = 1/300 s, Rayleigh
+// alpha 0.5, beta 0.01, so J = (1 + h alpha) M + (h^2 + h beta) K), held at two corners, with a
+// small transverse stiffness (a tension of 1e-3 of the stretch modulus) and a bending term
+// B (h^2 + h beta) / L^2 (D^T D) on the normal component, D the grid's graph Laplacian and L the
+// grid spacing (the discrete 1/2 B integral of (laplacian w)^2). Arguments: n, and B in 1e-5 N m
+// (0, 10 = the cloth preset's 1e-4, 100). One iteration: the multigrid setup for J and CG to a
+// 1e-8 residual reduction from a fixed pseudo-random right side (the hierarchy is built once,
+// outside). Counters: CG iterations and multigrid levels. It isolates the solver's growth with
+// the resolution from the stepped cloth's changing state, and the bending term's share in it.
+namespace sheet {
+
+using Eigen::SparseMatrix;
+using Eigen::VectorXd;
+
+struct System {
+  SparseMatrix<double> J, strength;
+  Eigen::MatrixX3d rest;
+};
+
+System make(int n, double bend) {
+  const double L = 1.0 / (n - 1), h = 1.0 / 300.0, alpha = 0.5, beta = 0.01;
+  const double w = h * h + h * beta, density = 0.3, stretch = 2000.0, shear = 100.0;
+  auto node = [n](int i, int j) { return j * n + i; };
+  // The anchors (the corners 0 and n - 1) are not unknowns.
+  std::vector<int> free_index(static_cast<size_t>(n * n));
+  int nf = 0;
+  for (int v = 0; v < n * n; ++v)
+    free_index[static_cast<size_t>(v)] = v == 0 || v == n - 1 ? -1 : nf++;
+  System s;
+  s.rest.resize(nf, 3);
+  std::vector<double> mass(static_cast<size_t>(n * n), 0.0);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      const int f = free_index[static_cast<size_t>(node(i, j))];
+      if (f >= 0) s.rest.row(f) << i * L, 0.0, j * L;
+    }
+  std::vector<Eigen::Triplet<double>> t, st;
+  auto add = [&](int a, int b, const Eigen::Matrix3d& B) {
+    const int fa = free_index[static_cast<size_t>(a)], fb = free_index[static_cast<size_t>(b)];
+    if (fa < 0 || fb < 0) return;
+    for (int c = 0; c < 3; ++c)
+      for (int r = 0; r < 3; ++r) t.emplace_back(3 * fa + r, 3 * fb + c, B(r, c));
+  };
+  // k = modulus * A / L0^2, A a third of each adjacent triangle's area (L^2 / 2 each).
+  auto spring = [&](int a, int b, double modulus, double area) {
+    const Eigen::Vector3d d = (Eigen::Vector3d((b % n) - (a % n), 0.0, (b / n) - (a / n)) * L);
+    const double k = modulus * area / d.squaredNorm();
+    const Eigen::Vector3d u = d.normalized();
+    const Eigen::Matrix3d P = u * u.transpose();
+    const Eigen::Matrix3d B = w * k * (P + 1e-3 * (Eigen::Matrix3d::Identity() - P));
+    add(a, a, B);
+    add(b, b, B);
+    add(a, b, -B);
+    add(b, a, -B);
+    const int fa = free_index[static_cast<size_t>(a)], fb = free_index[static_cast<size_t>(b)];
+    if (fa >= 0 && fb >= 0) {
+      st.emplace_back(fa, fb, k);
+      st.emplace_back(fb, fa, k);
+    }
+  };
+  const double third = L * L / 6.0;  // a third of one triangle
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      // Triangles (a, c, b) and (b, c, d) of each cell, as make_cloth() builds them.
+      const bool right = i + 1 < n, up = j + 1 < n;
+      if (right) spring(node(i, j), node(i + 1, j), stretch, third * ((j > 0) + up));
+      if (up) spring(node(i, j), node(i, j + 1), stretch, third * ((i > 0) + right));
+      if (right && up) {
+        spring(node(i + 1, j), node(i, j + 1), stretch, 2.0 * third);  // the cell's diagonal
+        spring(node(i, j), node(i + 1, j + 1), shear, 2.0 * third);    // across it
+        for (const int v : {node(i, j), node(i + 1, j), node(i, j + 1), node(i + 1, j + 1)})
+          mass[static_cast<size_t>(v)] +=
+              density * third * (v == node(i, j) || v == node(i + 1, j + 1) ? 1.0 : 2.0);
+      }
+    }
+  for (int v = 0; v < n * n; ++v)
+    add(v, v, (1.0 + h * alpha) * mass[static_cast<size_t>(v)] * Eigen::Matrix3d::Identity());
+  if (bend > 0.0) {
+    std::vector<Eigen::Triplet<double>> lt;
+    auto link = [&lt](int a, int b) {
+      lt.emplace_back(a, a, 1.0);
+      lt.emplace_back(b, b, 1.0);
+      lt.emplace_back(a, b, -1.0);
+      lt.emplace_back(b, a, -1.0);
+    };
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i) {
+        if (i + 1 < n) link(node(i, j), node(i + 1, j));
+        if (j + 1 < n) link(node(i, j), node(i, j + 1));
+      }
+    SparseMatrix<double> D(n * n, n * n);
+    D.setFromTriplets(lt.begin(), lt.end());
+    const SparseMatrix<double> K = (bend * w / (L * L)) * SparseMatrix<double>(D.transpose() * D);
+    for (int c = 0; c < K.outerSize(); ++c)
+      for (SparseMatrix<double>::InnerIterator it(K, c); it; ++it) {
+        Eigen::Matrix3d B = Eigen::Matrix3d::Zero();  // full 3x3 blocks, as the engine's pattern
+        B(1, 1) = it.value();
+        add(static_cast<int>(it.row()), c, B);
+      }
+  }
+  s.J.resize(3 * nf, 3 * nf);
+  s.J.setFromTriplets(t.begin(), t.end());
+  s.J.makeCompressed();
+  s.strength.resize(nf, nf);
+  s.strength.setFromTriplets(st.begin(), st.end());
+  return s;
+}
+
+}  // namespace sheet
+
+void BM_MultigridSheet(benchmark::State& state) {
+  using pbve::mass_spring::detail::Multigrid;
+  using pbve::mass_spring::detail::MultigridHierarchy;
+  const int n = static_cast<int>(state.range(0));
+  const sheet::System s = sheet::make(n, 1e-5 * static_cast<double>(state.range(1)));
+  const auto hierarchy = std::make_shared<const MultigridHierarchy>(s.J, s.strength, s.rest);
+  Multigrid mg(hierarchy);
+  Eigen::VectorXd b(s.J.rows());
+  std::mt19937 gen(1);
+  std::normal_distribution<double> normal;
+  for (Eigen::Index q = 0; q < b.size(); ++q) b[q] = normal(gen);
+  double iterations = 0;
+  for (auto _ : state) {
+    if (!mg.setup(s.J)) {
+      state.SkipWithError("the sheet's matrix is not positive definite");
+      return;
+    }
+    Eigen::VectorXd x = Eigen::VectorXd::Zero(b.size()), r = b, z, Ap;
+    mg.apply(r, z);
+    Eigen::VectorXd p = z;
+    double rz = r.dot(z);
+    int it = 0;
+    while (r.norm() > 1e-8 * b.norm() && it < 1000) {
+      mg.multiply(p, Ap);
+      const double a = rz / p.dot(Ap);
+      x += a * p;
+      r -= a * Ap;
+      mg.apply(r, z);
+      const double rz_new = r.dot(z);
+      p = z + (rz_new / rz) * p;
+      rz = rz_new;
+      ++it;
+    }
+    iterations += it;
+    benchmark::DoNotOptimize(x.data());
+  }
+  state.counters["vertices"] = n * n;
+  state.counters["levels"] = static_cast<double>(hierarchy->levels().size());
+  state.counters["cg_iters"] = benchmark::Counter(iterations, benchmark::Counter::kAvgIterations);
 }
 
 // Example 1's board: 40 x 30 x 1 cm, refined like `pbve bench` does (edge lengths shrinking by
@@ -279,6 +435,9 @@ BENCHMARK(BM_ClothStep)
     ->Arg(128)
     ->Arg(181)
     ->Arg(256)
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_MultigridSheet)
+    ->ArgsProduct({{32, 64, 128, 256}, {0, 10, 100}})
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjp)->Arg(22)->Arg(32)->Arg(64)->Arg(128)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ClothVjpReplay)->Arg(32)->Arg(64)->Unit(benchmark::kMillisecond);
