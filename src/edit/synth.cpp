@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <random>
@@ -128,6 +129,14 @@ Mesh make_figurine(double height, int rings, int segments) {
     throw InputError("make_figurine: rings must be at least 2, got " + std::to_string(rings));
   if (segments < 3)
     throw InputError("make_figurine: segments must be at least 3, got " + std::to_string(segments));
+  if (!(height > 0.0) || !std::isfinite(height))
+    throw InputError("make_figurine: height must be positive and finite, got " +
+                     std::to_string(height));
+  // 2 (rings - 1) segments triangles, indexed by int (checked before any allocation).
+  if (2 * (static_cast<long long>(rings) - 1) * segments + 2 > std::numeric_limits<int>::max())
+    throw InputError("make_figurine: rings " + std::to_string(rings) + " x segments " +
+                     std::to_string(segments) +
+                     " make more vertices and triangles than int indices hold");
   // Profile radius over t in [0, 1] (feet at t = 0, top of the head at t = 1).
   auto radius = [&](double t) {
     const double body = 0.24 * std::sqrt(std::max(0.0, 1.0 - std::pow((t - 0.33) / 0.36, 2)));

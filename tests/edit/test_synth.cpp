@@ -2,6 +2,7 @@
 
 #include "pbve/edit/synth.hpp"
 
+#include <cmath>
 #include <exception>
 #include <string>
 #include <utility>
@@ -44,6 +45,30 @@ TEST(Figurine, TooFewRingsOrSegmentsNameTheArgument) {
   for (const int segments : {2, 1, 0, -1})
     EXPECT_EQ(message(48, segments),
               "make_figurine: segments must be at least 3, got " + std::to_string(segments));
+}
+
+// A height that is not positive and finite made a point, a mirrored figurine or NaN vertices
+// without a word; a ring and segment count beyond int's vertex indices overflowed them.
+TEST(Figurine, HeightAndSizeOutOfRangeNameTheArgument) {
+  const auto message = [](double height, int rings, int segments) -> std::string {
+    try {
+      make_figurine(height, rings, segments);
+    } catch (const InputError& e) {
+      return e.what();
+    } catch (const std::exception& e) {
+      return std::string("another exception: ") + e.what();
+    }
+    return "accepted";
+  };
+  for (const double height : {0.0, -0.36, std::nan(""), HUGE_VAL})
+    EXPECT_EQ(
+        message(height, 8, 8).rfind("make_figurine: height must be positive and finite, got ", 0),
+        0u)
+        << height;
+  EXPECT_EQ(message(0.36, 65536, 65536),
+            "make_figurine: rings 65536 x segments 65536 make more vertices and triangles than int "
+            "indices hold");
+  EXPECT_EQ(message(0.36, 8, 8), "accepted");
 }
 
 }  // namespace

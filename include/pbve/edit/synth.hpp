@@ -27,7 +27,8 @@ Mesh make_icosphere(double radius, int subdivisions);
 /// neck, its front bulged along -z (towards a camera on -z of it). The profile is cut into
 /// `rings` bands from the feet to the head: rings - 1 rings of `segments` vertices between two
 /// poles, 2 + (rings - 1) x segments vertices and 2 x (rings - 1) x segments triangles. Throws
-/// InputError for rings < 2 or segments < 3 (no closed surface).
+/// InputError for rings < 2 or segments < 3 (no closed surface), a height that is not positive
+/// and finite, or more triangles than int indices hold.
 Mesh make_figurine(double height, int rings = 48, int segments = 48);
 
 /// Colour (BGR, 0..255) of the object's surface at a mesh-space point with a mesh-space normal.
