@@ -45,7 +45,8 @@ if(NOT BUILD_SHARED_LIBS)
   list(JOIN pc_private " " PBVE_PC_LIBS_PRIVATE)
 endif()
 # Relocatable (paths from the file's own folder) when the library and include folders are
-# relative to the prefix; absolute install folders are written as they are.
+# relative to the prefix; absolute install folders are written as they are, with the prefix of
+# the configuration (as CMake's exported targets hold it then): such a tree is not relocatable.
 if(IS_ABSOLUTE "${CMAKE_INSTALL_LIBDIR}")
   set(PBVE_PC_PREFIX "${CMAKE_INSTALL_PREFIX}")
   set(PBVE_PC_LIBDIR "${CMAKE_INSTALL_LIBDIR}")
