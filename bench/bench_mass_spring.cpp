@@ -146,7 +146,6 @@ void BM_ClothVjpReplay(benchmark::State& state) {
 namespace sheet {
 
 using Eigen::SparseMatrix;
-using Eigen::VectorXd;
 
 struct System {
   SparseMatrix<double> J, strength;
