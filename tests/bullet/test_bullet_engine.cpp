@@ -118,7 +118,9 @@ TEST(BulletEngine, InvalidValuesAreInputErrors) {
   msg = error_of("  engine: bullet\n  material: cloth\n  position_iterations: 2.5\n", grid);
   EXPECT_NE(msg.find("expected an integer"), std::string::npos) << msg;
   msg = error_of("  engine: bullet\n  material: cloth\n  shape_matching: 0.5\n", grid);
-  EXPECT_NE(msg.find("shape_matching must be 0 for cloth"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("simulation.shape_matching"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("applies to material elastic and stiff only, not to cloth"), std::string::npos)
+      << msg;
   msg = error_of("  engine: bullet\n  material: cloth\n  single_sheet: 2\n", grid);
   EXPECT_NE(msg.find("single_sheet"), std::string::npos) << msg;
   // An open sheet has no volume to keep.
@@ -131,6 +133,51 @@ TEST(BulletEngine, InvalidValuesAreInputErrors) {
   for (const char* material : {"elastic", "rigid"}) {
     msg = error_of(std::string("  engine: bullet\n  material: ") + material + "\n", far);
     EXPECT_NE(msg.find("borders a hole"), std::string::npos) << material << ": " << msg;
+  }
+}
+
+// A parameter of another material would be ignored: the scene is refused at the key's line,
+// naming the materials it applies to, whatever its value (even the preset's own).
+TEST(BulletEngine, AParameterOfAnotherMaterialNamesTheKeyAndItsMaterials) {
+  const pbve::Mesh grid = pbve::test::grid_mesh(4, 0.2);
+  const pbve::Mesh ball = pbve::test::icosphere(1, 0.05, Eigen::Vector3d(0, 0, 1));
+  struct Case {
+    const char* material;
+    const char* line;
+    const char* expected;
+  };
+  for (const Case& c : {
+           Case{"cloth", "restitution: 0.5", "applies to material rigid only, not to cloth"},
+           Case{"cloth", "volume_stiffness: 2e4",
+                "applies to material elastic and stiff only, not to cloth"},
+           Case{"cloth", "pressure: 0", "applies to material elastic and stiff only"},
+           Case{"elastic", "single_sheet: 1", "applies to material cloth only, not to elastic"},
+           Case{"stiff", "layer_distance: 0.01", "applies to material cloth only, not to stiff"},
+           Case{"elastic", "hull_tolerance: 0.05", "applies to material rigid only"},
+           Case{"rigid", "linear_stiffness: 0.5",
+                "applies to material cloth, elastic and stiff only, not to rigid"},
+           Case{"rigid", "damping: 0.01", "not to rigid"},
+           Case{"rigid", "position_iterations: 4", "not to rigid"},
+       }) {
+    SCOPED_TRACE(std::string(c.material) + ", " + c.line);
+    const std::string msg = error_of(
+        std::string("  engine: bullet\n  material: ") + c.material + "\n  " + c.line + "\n",
+        std::string(c.material) == "cloth" ? grid : ball);
+    const std::string key = std::string(c.line).substr(0, std::string(c.line).find(':'));
+    // The offending key is on line 8 of the scene text.
+    EXPECT_NE(msg.find("s.yaml:8"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("simulation." + key), std::string::npos) << msg;
+    EXPECT_NE(msg.find(c.expected), std::string::npos) << msg;
+  }
+  // Keys of every material, and a material's own keys, are still accepted.
+  for (const char* material : {"cloth", "rigid"}) {
+    SCOPED_TRACE(material);
+    const bool is_cloth = std::string(material) == "cloth";
+    const std::string own = is_cloth ? "  layer_stiffness: 0.4\n" : "  restitution: 0.3\n";
+    EXPECT_EQ(error_of(std::string("  engine: bullet\n  material: ") + material +
+                           "\n  density: 500\n  friction: 0.5\n  collision_margin: 0.003\n" + own,
+                       is_cloth ? grid : ball),
+              "(no error)");
   }
 }
 

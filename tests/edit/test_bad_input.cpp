@@ -183,6 +183,14 @@ TEST_F(BadInput, RegionsOfACloth) {
                                                "(material elastic or stiff), not to cloth"});
 }
 
+TEST_F(BadInput, AParameterOfAnotherMaterialNamesTheKey) {
+  // The synthetic scene is a cloth: an interior lattice's spacing would be ignored.
+  replace(scene, "  substeps: 3", "  substeps: 3\n  lattice_spacing: 0.01");
+  expect_error(edit(), {location("lattice_spacing:") + "key 'simulation.lattice_spacing': applies "
+                                                       "to material elastic and stiff only, not "
+                                                       "to cloth (engine mass_spring)"});
+}
+
 TEST_F(BadInput, AMisspeltNumericSimulationKeyNamesTheNearestOne) {
   replace(scene, "substeps: 3", "substep: 3");
   expect_error(edit(), {location("substep:") + "key 'simulation.substep': unknown key for engine "

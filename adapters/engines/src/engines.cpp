@@ -5,6 +5,8 @@
 #include <limits>
 #include <sstream>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 #include "pbve/core/error.hpp"
 
@@ -50,6 +52,44 @@ void store_parameter(const EngineRecipe& r, const std::string& engine, const std
     }
     *int_field = static_cast<int>(value);
   }
+}
+
+/// The materials an engine's parameter applies to, where not all of the engine's: set for
+/// another material, the value would be silently ignored (a cloth has no interior lattice, a
+/// rigid body no links), so the scene is refused naming the key, its line and the materials.
+/// Empty for a key that applies to every material.
+std::vector<std::string> materials_of(const std::string& engine, const std::string& key) {
+  using List = std::vector<std::string>;
+  const List cloth = {"cloth"}, solids = {"elastic", "stiff"}, soft = {"cloth", "elastic", "stiff"},
+             rigid = {"rigid"};
+  if (key == "single_sheet" || key == "layer_stiffness" || key == "layer_distance") return cloth;
+  if (engine == "mass_spring") {
+    if (key == "direct_solver_max_dofs_layered") return cloth;
+    if (key == "volume_stiffness" || key == "lattice_spacing") return solids;
+  }
+  if (engine == "bullet") {
+    if (key == "linear_stiffness" || key == "bending_stiffness" || key == "damping" ||
+        key == "position_iterations")
+      return soft;
+    if (key == "shape_matching" || key == "volume_stiffness" || key == "pressure") return solids;
+    if (key == "linear_damping" || key == "angular_damping" || key == "restitution" ||
+        key == "hull_tolerance")
+      return rigid;
+  }
+  return {};
+}
+
+/// Fails when the `simulation:` parameter `key` does not apply to `material` (materials_of()).
+void check_applies(const EngineRecipe& r, const std::string& engine, const std::string& material,
+                   const std::string& key, int line) {
+  const std::vector<std::string> only = materials_of(engine, key);
+  if (only.empty() || std::find(only.begin(), only.end(), material) != only.end()) return;
+  std::string list;
+  for (size_t i = 0; i < only.size(); ++i)
+    list += (i == 0 ? "" : i + 1 == only.size() ? " and " : ", ") + only[i];
+  fail_key(r, key, line,
+           "applies to material " + list + " only, not to " + material + " (engine " + engine +
+               "): the value would be ignored; remove the key");
 }
 
 #ifdef PBVE_ENGINE_MASS_SPRING
@@ -119,6 +159,7 @@ mass_spring::Params mass_spring_params(const EngineRecipe& r) {
     else if (key == "single_sheet")
       int_field = &p.single_sheet;
     store_parameter(r, "mass_spring", key, line, value, field, int_field);
+    check_applies(r, "mass_spring", s.material, key, line);
   }
   for (const SceneRegion& g : s.regions) {
     ms::StiffnessRegion region;
@@ -222,6 +263,7 @@ bullet::Params bullet_params(const EngineRecipe& r) {
     else if (key == "single_sheet")
       int_field = &p.single_sheet;
     store_parameter(r, "bullet", key, line, value, field, int_field);
+    check_applies(r, "bullet", s.material, key, line);
   }
   if (!s.regions.empty())
     fail_key(r, "regions", s.regions.front().line,
