@@ -143,6 +143,9 @@ void BM_ClothVjpReplay(benchmark::State& state) {
 // 1e-8 residual reduction from a fixed pseudo-random right side (the hierarchy is built once,
 // outside). Counters: CG iterations and multigrid levels. It isolates the solver's growth with
 // the resolution from the stepped cloth's changing state, and the bending term's share in it.
+// Its bending is not the engine's hinge energy: linear interpolation on coarse triangles costs it
+// iterations that the cloth's own systems do not lose (docs/benchmarks.md, "The sheet benchmark
+// and the cloth step part ways"), so a solver change it favours needs checking on BM_ClothStep.
 namespace sheet {
 
 using Eigen::SparseMatrix;
