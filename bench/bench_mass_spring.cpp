@@ -20,6 +20,7 @@
 #include <benchmark/benchmark.h>
 
 #include "../adapters/mass_spring/src/multigrid.hpp"
+#include "../tests/support/pcg.hpp"
 #include "pbve/core/mesh.hpp"
 #include "pbve/edit/synth.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
@@ -263,21 +264,13 @@ void BM_MultigridSheet(benchmark::State& state) {
       state.SkipWithError("the sheet's matrix is not positive definite");
       return;
     }
-    Eigen::VectorXd x = Eigen::VectorXd::Zero(b.size()), r = b, z, Ap;
-    mg.apply(r, z);
-    Eigen::VectorXd p = z;
-    double rz = r.dot(z);
-    int it = 0;
-    while (r.norm() > 1e-8 * b.norm() && it < 1000) {
-      mg.multiply(p, Ap);
-      const double a = rz / p.dot(Ap);
-      x += a * p;
-      r -= a * Ap;
-      mg.apply(r, z);
-      const double rz_new = r.dot(z);
-      p = z + (rz_new / rz) * p;
-      rz = rz_new;
-      ++it;
+    Eigen::VectorXd x;
+    const int it = pbve::test::pcg_iterations(
+        [&](const Eigen::VectorXd& p, Eigen::VectorXd& Ap) { mg.multiply(p, Ap); }, b, 1e-8,
+        [&](const Eigen::VectorXd& r, Eigen::VectorXd& z) { mg.apply(r, z); }, x);
+    if (it < 0) {
+      state.SkipWithError("CG did not converge in 1000 iterations");
+      return;
     }
     iterations += it;
     benchmark::DoNotOptimize(x.data());

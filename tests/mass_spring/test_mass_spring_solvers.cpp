@@ -22,6 +22,7 @@
 #include "meshes.hpp"
 #include "pbve/edit/synth.hpp"
 #include "pbve/mass_spring/mass_spring.hpp"
+#include "support/pcg.hpp"
 
 namespace {
 
@@ -187,30 +188,7 @@ std::shared_ptr<const pbve::mass_spring::detail::MultigridHierarchy> sheet_hiera
   return std::make_shared<const MultigridHierarchy>(A, sheet_strength(n), rest);
 }
 
-// Preconditioned CG on A x = b from 0 to |r| <= tol |b|; returns the iterations (-1 if not
-// converged in 1000 or on breakdown).
-template <class Precondition>
-int pcg_iterations(const SparseMatrix<double>& A, const VectorXd& b, double tol,
-                   Precondition precondition, VectorXd& x) {
-  x = VectorXd::Zero(b.size());
-  VectorXd r = b, z;
-  precondition(r, z);
-  VectorXd p = z;
-  double rz = r.dot(z);
-  for (int it = 1; it <= 1000; ++it) {
-    const VectorXd Ap = A * p;
-    const double pAp = p.dot(Ap);
-    if (!(pAp > 0.0)) return -1;
-    x += (rz / pAp) * p;
-    r -= (rz / pAp) * Ap;
-    if (r.norm() <= tol * b.norm()) return it;
-    precondition(r, z);
-    const double rz_new = r.dot(z);
-    p = z + (rz_new / rz) * p;
-    rz = rz_new;
-  }
-  return -1;
-}
+using pbve::test::pcg_iterations;
 
 // pcg_iterations() to 1e-8 with one V-cycle of m as the preconditioner, from the fixed
 // pseudo-random right side b.
